@@ -1,0 +1,42 @@
+# The README's two commands: `make demo` and `make test`. Both set everything up
+# themselves on a fresh Debian/Ubuntu machine (root or sudo): system packages,
+# a working libLLVM, the virtual environment in .venv, the project.
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+STAMP := $(VENV)/.installed
+PYTEST_ARGS ?=
+
+.PHONY: demo test setup system venv clean
+
+demo: setup
+	$(VENV)/bin/pointillist render scenes/default.xml -o out/default.exr --png
+
+test: setup
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+setup: system $(STAMP)
+
+# System packages: python3-venv where venv is missing, and a libLLVM Dr.Jit can use.
+system:
+	@if ! $(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then \
+		echo "pointillist needs Python >= 3.11 (found: $$($(PYTHON) --version 2>&1))" >&2; exit 2; fi
+	@need=""; \
+	$(PYTHON) -c 'import venv, ensurepip' 2>/dev/null || need="$$need python3-venv"; \
+	$(PYTHON) pointillist/llvm.py --check >/dev/null 2>&1 || need="$$need libllvm19"; \
+	if [ -n "$$need" ]; then \
+		echo "installing system packages:$$need"; \
+		$(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$need >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	@[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+clean:
+	rm -rf $(VENV) out build *.egg-info

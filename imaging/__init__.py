@@ -1,0 +1,18 @@
+"""pointillist's imaging module: image operations on Dr.Jit tensors, and EXR/PNG I/O.
+
+Every operation accepts a numpy array or a Dr.Jit tensor of shape ``(H, W)`` or
+``(H, W, C)`` and returns a ``drjit.llvm.TensorXf`` (``np.asarray(result)``
+gives numpy without a copy). Intensities are on 0..255 unless a function says
+otherwise; EXR renders are linear floats.
+
+Importing this package points Dr.Jit at a usable libLLVM first (see
+:mod:`pointillist.llvm`).
+"""
+
+from pointillist.llvm import ensure_llvm as _ensure_llvm
+
+_ensure_llvm()
+
+from imaging._array import as_tensor, to_numpy  # noqa: E402
+
+__all__ = ["as_tensor", "to_numpy"]

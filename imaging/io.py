@@ -1,0 +1,305 @@
+"""EXR and PNG input/output.
+
+EXR goes through the OpenEXR package (float32 scanline images, ZIP compression):
+``Y`` for grey images, ``R G B`` and ``R G B A`` for colour, plus any number of
+extra single-channel layers (for example a per-pixel sample count). Header
+attributes carry metadata (``spp``, ``sampler``, ``integrator``,
+``render_seconds`` ...): ints, floats and strings round-trip exactly.
+
+Every write is atomic (written to a temporary file beside the target, then
+renamed over it) and refuses to overwrite a file that this process read as an
+input with :func:`read_exr` (or that is named in ``inputs=``).
+
+PNG previews are 8-bit, sRGB-encoded through colour-science. Policy for values
+PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from imaging._array import as_tensor, to_numpy
+
+__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path"]
+
+#: EXR header attributes that OpenEXR owns; metadata may not use these names.
+_RESERVED = {
+    "channels", "compression", "dataWindow", "displayWindow", "lineOrder",
+    "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type", "tiles",
+    "name", "version", "chunkCount",
+}
+
+#: (st_dev, st_ino) of every file read by read_exr in this process.
+_INPUTS: set[tuple[int, int]] = set()
+
+
+class EXRImage(NamedTuple):
+    """What :func:`read_exr` returns.
+
+    Attributes
+    ----------
+    image : numpy.ndarray
+        float32, (H, W) for a ``Y`` image, (H, W, 3) RGB or (H, W, 4) RGBA.
+    metadata : dict
+        The header attributes that are not OpenEXR's own.
+    layers : dict
+        Extra channels by name, each float32 (H, W).
+    """
+
+    image: np.ndarray
+    metadata: dict[str, Any]
+    layers: dict[str, np.ndarray]
+
+
+def _file_id(path: str | os.PathLike) -> tuple[int, int] | None:
+    try:
+        stat = os.stat(path)
+    except OSError:
+        return None
+    return stat.st_dev, stat.st_ino
+
+
+def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = (),
+                      name: str = "path") -> Path:
+    """Check that ``path`` may be written: its folder exists, it is not an input.
+
+    Raises ValueError naming ``name``.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{name}: {path} is a directory, expected a file name")
+    if not path.parent.exists():
+        raise ValueError(f"{name}: folder {path.parent} does not exist")
+    target = _file_id(path)
+    if target is not None:
+        ids = set(_INPUTS)
+        ids.update(i for i in map(_file_id, inputs) if i is not None)
+        if target in ids:
+            raise ValueError(f"{name}: refusing to overwrite the input file {path}")
+    return path
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Call ``write(tmp_path)`` and rename the temporary file over ``path``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def read_exr(path: str | os.PathLike) -> EXRImage:
+    """Read an OpenEXR file as float32 numpy arrays.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The EXR file.
+
+    Returns
+    -------
+    EXRImage
+        ``(image, metadata, layers)``: the ``Y``/``RGB``/``RGBA`` pixels, the
+        non-standard header attributes, and the other channels by name.
+
+    Raises
+    ------
+    ValueError
+        If the file is missing or is not a readable EXR image.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from imaging.io import read_exr, write_exr
+    >>> path = os.path.join(tempfile.mkdtemp(), "x.exr")
+    >>> write_exr(path, np.ones((2, 3, 3), np.float32), metadata={"spp": 16})
+    >>> image, meta, layers = read_exr(path)
+    >>> image.shape, meta["spp"]
+    ((2, 3, 3), 16)
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"path: no such EXR file: {path}")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            header = dict(exr.header())
+            channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+    except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
+        raise ValueError(f"path: {path} is not a readable EXR file ({error})") from None
+    if not channels:
+        raise ValueError(f"path: {path} holds no channels")
+    _INPUTS.add(_file_id(path))
+
+    def take(*names: str) -> np.ndarray:
+        return np.stack([channels.pop(n) for n in names], axis=-1)
+
+    if {"R", "G", "B"} <= channels.keys():
+        image = take("R", "G", "B", "A") if "A" in channels else take("R", "G", "B")
+    elif "Y" in channels:
+        image = channels.pop("Y")
+    elif len(channels) == 1:
+        image = channels.pop(next(iter(channels)))
+    else:
+        raise ValueError(f"path: {path} has no Y or RGB channels (has {sorted(channels)})")
+    metadata = {k: _plain(v) for k, v in header.items() if k not in _RESERVED}
+    return EXRImage(np.ascontiguousarray(image), metadata, channels)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] | None = None, *,
+              layers: Mapping[str, Any] | None = None, inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Write a float32 OpenEXR file atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Target file; its folder must exist. Never an input of this process.
+    image : array_like or Dr.Jit tensor
+        (H, W) or (H, W, 1) writes ``Y``; (H, W, 3) ``RGB``; (H, W, 4) ``RGBA``.
+    metadata : mapping, optional
+        Header attributes: str keys, values int, float, str or bool (stored as int).
+    layers : mapping, optional
+        Extra channels, each (H, W), e.g. ``{"spp": counts}``.
+    inputs : iterable of paths
+        Files this write must not replace (besides those read by :func:`read_exr`).
+
+    Raises
+    ------
+    TypeError
+        For metadata values of another type.
+    ValueError
+        For a bad shape, a reserved or clashing name, or a forbidden path.
+    """
+    import OpenEXR
+
+    path = check_output_path(path, inputs)
+    pixels = to_numpy(as_tensor(image, "image", channels=(1, 3, 4))).astype(np.float32, copy=False)
+    if pixels.ndim == 3 and pixels.shape[2] == 1:
+        pixels = pixels[..., 0]
+    names = {2: "Y", 3: "RGB", 4: "RGBA"}[pixels.ndim if pixels.ndim == 2 else pixels.shape[2]]
+    channels: dict[str, np.ndarray] = {names: np.ascontiguousarray(pixels)}
+    for name, layer in (layers or {}).items():
+        if not isinstance(name, str) or not name or name in {"R", "G", "B", "A", "Y"}:
+            raise ValueError(f"layers: invalid or clashing channel name {name!r}")
+        data = to_numpy(as_tensor(layer, f"layers[{name!r}]")).astype(np.float32, copy=False)
+        if data.shape != pixels.shape[:2]:
+            raise ValueError(f"layers[{name!r}]: expected shape {pixels.shape[:2]}, got {data.shape}")
+        channels[name] = np.ascontiguousarray(data)
+    header: dict[str, Any] = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (metadata or {}).items():
+        if not isinstance(key, str) or not key:
+            raise TypeError(f"metadata: keys must be non-empty str, got {key!r}")
+        if key in _RESERVED:
+            raise ValueError(f"metadata: {key!r} is a reserved EXR attribute name")
+        if isinstance(value, (bool, np.bool_)):
+            value = int(value)
+        elif isinstance(value, np.integer):
+            value = int(value)
+        elif isinstance(value, np.floating):
+            value = float(value)
+        if not isinstance(value, (int, float, str)):
+            raise TypeError(f"metadata[{key!r}]: expected int, float or str, got {type(value).__name__}")
+        header[key] = value
+
+    def write(tmp: str) -> None:
+        with OpenEXR.File(header, channels) as exr:
+            exr.write(tmp)
+
+    _atomic_write(path, write)
+
+
+def to_8bit(image: Any, *, srgb: bool = True, max_value: float = 1.0) -> np.ndarray:
+    """Return ``image`` as uint8 for display: divide by ``max_value``, sRGB-encode, clip, round.
+
+    NaN becomes 0; +inf becomes 255, -inf 0.
+    """
+    if not np.isfinite(max_value) or max_value <= 0:
+        raise ValueError(f"max_value: expected a positive finite number, got {max_value}")
+    pixels = to_numpy(as_tensor(image, "image", channels=(1, 3, 4))).astype(np.float64)
+    pixels = np.nan_to_num(pixels / max_value, nan=0.0, posinf=1.0, neginf=0.0)
+    pixels = np.clip(pixels, 0.0, 1.0)
+    if srgb:
+        import colour
+
+        if pixels.ndim == 3 and pixels.shape[2] == 4:  # alpha stays linear
+            pixels[..., :3] = colour.cctf_encoding(pixels[..., :3], function="sRGB")
+        else:
+            pixels = colour.cctf_encoding(pixels, function="sRGB")
+    return np.round(np.clip(pixels, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def write_png(path: str | os.PathLike, image: Any, *, srgb: bool = True, max_value: float = 1.0,
+              inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Write an 8-bit PNG preview atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Target ``.png`` file.
+    image : array_like or Dr.Jit tensor
+        (H, W), (H, W, 1), (H, W, 3) or (H, W, 4).
+    srgb : bool
+        ``True`` (default): ``image`` is linear light and is sRGB-encoded
+        (colour-science's ``cctf_encoding``). ``False``: values are already
+        display-encoded.
+    max_value : float
+        The value shown as full white: 1.0 for renders, 255 for the imaging
+        operations' 0..255 intensities.
+
+    Notes
+    -----
+    NaN is written as 0, +inf as 255; other values are clipped to 0..255.
+    """
+    from PIL import Image
+
+    path = check_output_path(path, inputs)
+    pixels = to_8bit(image, srgb=srgb, max_value=max_value)
+    if pixels.ndim == 3 and pixels.shape[2] == 1:
+        pixels = pixels[..., 0]
+    _atomic_write(path, lambda tmp: Image.fromarray(pixels).save(tmp, format="PNG"))
+
+
+def read_image(path: str | os.PathLike) -> EXRImage:
+    """Read an EXR (linear float) or an 8-bit/16-bit PNG/JPEG/TIFF (values 0..255 float32).
+
+    Non-EXR images come back with empty metadata and no layers.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".exr":
+        return read_exr(path)
+    if not path.is_file():
+        raise ValueError(f"path: no such image file: {path}")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            mode = img.mode
+            if mode in ("I;16", "I;16B", "I"):
+                pixels = np.asarray(img, dtype=np.float32) / 257.0
+            else:
+                img = img.convert("RGBA" if "A" in mode else ("L" if mode in ("L", "1", "P") and mode != "P" else "RGB"))
+                pixels = np.asarray(img, dtype=np.float32)
+    except (UnidentifiedImageError, OSError) as error:
+        raise ValueError(f"path: {path} is not a readable image ({error})") from None
+    _INPUTS.add(_file_id(path))
+    return EXRImage(np.ascontiguousarray(pixels), {}, {})

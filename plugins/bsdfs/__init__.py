@@ -1,0 +1,1 @@
+"""pointillist's Mitsuba bsdf plugins, one per module (see :mod:`plugins`)."""

@@ -1,0 +1,1 @@
+"""pointillist's Mitsuba integrator plugins, one per module (see :mod:`plugins`)."""

@@ -1,0 +1,1 @@
+"""pointillist's Mitsuba sampler plugins, one per module (see :mod:`plugins`)."""

@@ -1,0 +1,36 @@
+"""pointillist: a physically based renderer of Mitsuba 3 plugins written in Python on Dr.Jit.
+
+The command line (``pointillist render|compare|post|mip``) lives in
+:mod:`pointillist.cli`; the workflows it runs live beside it. Library users
+start with :func:`setup`::
+
+    import pointillist
+    mi = pointillist.setup()          # llvm_ad_rgb, plugins registered
+    scene = mi.load_file("scenes/default.xml")
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+__all__ = ["setup", "__version__"]
+
+
+def setup(variant: str = "llvm_ad_rgb"):
+    """Point Dr.Jit at a usable libLLVM, set the Mitsuba variant, register the plugins.
+
+    Returns the ``mitsuba`` module. Raises :class:`pointillist.llvm.LLVMNotFoundError`
+    when no usable libLLVM exists and ValueError for an unknown variant.
+    """
+    from pointillist.llvm import ensure_llvm
+
+    ensure_llvm()
+    import mitsuba as mi
+
+    if variant not in mi.variants():
+        raise ValueError(f"variant: unknown Mitsuba variant {variant!r}; available: {', '.join(mi.variants())}")
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    import plugins
+
+    plugins.register()
+    return mi

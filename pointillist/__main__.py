@@ -1,0 +1,5 @@
+import sys
+
+from pointillist.cli import main
+
+sys.exit(main())

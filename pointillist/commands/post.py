@@ -1,0 +1,146 @@
+"""Post-process a render (EXR) or an 8-bit image with imaging steps, in order, and write PNG/EXR.
+
+Only the steps asked for run. EXR input is linear light: a tone-mapping step
+(``tonemap:...``) turns it into display intensities on 0..255; when the first
+step that needs display intensities comes before any tone mapping,
+``tonemap:clip`` (clip to 0..1, sRGB curve, scale to 255) is applied first and
+said so. PNG/JPEG input is already on 0..255.
+
+Output: ``.png`` writes 8-bit (display values as they are, or an sRGB preview
+of linear values when no step ran that leaves linear light); ``.exr`` writes the
+float values as they are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pointillist.errors import UsageError
+
+NAME = "post"
+HELP = "tone-map, filter and dither a render (steps run in order)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", help="input image: EXR render, or PNG/JPEG/TIFF")
+    parser.add_argument("-o", "--output", required=True, help="output .png or .exr")
+    parser.add_argument("--steps", default="", metavar="STEPS",
+                        help='steps separated by ";", e.g. "tonemap:reinhard,exposure=1;gamma:2.2"')
+    parser.add_argument("--step", action="append", default=[], metavar="STEP",
+                        help="one step (repeatable; runs after --steps)")
+    parser.add_argument("--dither", metavar="METHOD[:ARGS]",
+                        help="dither last, e.g. floyd_steinberg or ordered:levels=4")
+    parser.add_argument("--report", action="store_true",
+                        help="print statistics after each step (and the dither error)")
+    parser.add_argument("--plot", nargs="?", const="", metavar="FILE",
+                        help="write a before/after histogram plot (default: OUTPUT stem + _histogram.png)")
+    parser.add_argument("--list-steps", action="store_true", help="list the known steps and exit")
+
+
+def _stats(image) -> str:
+    import numpy as np
+
+    values = np.asarray(image)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return "no finite values"
+    return f"min {finite.min():.4g}, mean {finite.mean():.4g}, max {finite.max():.4g}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from pointillist.steps import parse_steps, steps
+
+    if args.list_steps:
+        for name, spec in steps().items():
+            params = f" ({', '.join(spec.params)})" if spec.params else ""
+            print(f"{name}{params}: {spec.help}")
+        return 0
+    text = ";".join([args.steps, *args.step] + ([f"dither:{args.dither.replace(':', ',', 1)}"] if args.dither else []))
+    pipeline = parse_steps(text)
+    source, out = Path(args.input), Path(args.output)
+    if out.suffix.lower() not in (".png", ".exr"):
+        raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
+    if not source.is_file():
+        raise UsageError(f"input: no such file: {source}")
+    if out.exists() and out.resolve() == source.resolve():
+        raise UsageError(f"--output: refusing to overwrite the input {source}")
+    if not out.parent.is_dir():
+        raise UsageError(f"--output: folder {out.parent} does not exist")
+
+    from imaging import as_tensor
+    from imaging.io import read_image, write_exr, write_png
+
+    try:
+        image, metadata, _layers = read_image(source)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]
+    linear = source.suffix.lower() == ".exr"
+    before = image
+    current = as_tensor(image)
+    known = steps()
+    done = []
+    for spec, kwargs in pipeline:
+        if linear and not spec.linear:
+            current = known["tonemap"].function(current, operator="clip")
+            linear = False
+            done.append("tonemap:clip")
+            print("post: input is linear light; applied tonemap:clip first", file=sys.stderr)
+        elif spec.linear and not linear:
+            raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
+                             "but the image is already display-referred")
+        previous = current
+        try:
+            current = spec.function(current, **kwargs)
+        except TypeError as error:
+            raise UsageError(f"--steps: {spec.name}: {error}") from None
+        linear = False if spec.linear else linear
+        done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
+        if args.report:
+            print(f"{spec.name}: {_stats(current)}")
+            if spec.report is not None:
+                for key, value in spec.report(previous, current).items():
+                    print(f"  {key}: {value:.6g}")
+    if out.suffix.lower() == ".exr":
+        write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=[source])
+    elif linear:
+        write_png(out, current, inputs=[source])
+    else:
+        write_png(out, current, srgb=False, max_value=255.0, inputs=[source])
+    print(f"wrote {out} ({'; '.join(done)})")
+    if args.plot is not None:
+        plot = Path(args.plot) if args.plot else out.with_name(out.stem + "_histogram.png")
+        histogram_plot(plot, before, current, linear_before=source.suffix.lower() == ".exr",
+                       title=f"{source.name}: {'; '.join(done)}", inputs=[source])
+        print(f"wrote {plot}")
+    return 0
+
+
+def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str, inputs=()) -> None:
+    """Write a PNG with the histograms of ``before`` and ``after`` side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from imaging.io import check_output_path
+
+    path = check_output_path(path, inputs, name="--plot")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    for ax, data, label in ((axes[0], before, "before"), (axes[1], after, "after")):
+        values = np.asarray(data, dtype=np.float64)
+        values = values[np.isfinite(values)]
+        ax.hist(values.ravel(), bins=256, color="0.3")
+        ax.set_title(label + (" (linear)" if label == "before" and linear_before else ""))
+        ax.set_xlabel("value")
+        ax.set_ylabel("pixels")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(path)

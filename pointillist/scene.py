@@ -1,0 +1,142 @@
+"""Loading Mitsuba scenes with user parameters, and rendering them with a timing split."""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from pointillist.errors import UsageError
+
+__all__ = ["parse_defines", "load_scene", "mitsuba_message", "RenderTiming", "timed_render", "scene_info"]
+
+_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
+
+
+def mitsuba_message(error: BaseException) -> str:
+    """One line from a Mitsuba exception: source-location prefixes dropped, lines joined."""
+    text = _PREFIX.sub("", str(error))
+    return " ".join(part.strip(" -") for part in text.splitlines() if part.strip())
+
+
+def parse_defines(defines: list[str] | None) -> dict[str, str]:
+    """Parse ``-D key=value`` strings into a dict; UsageError names the bad one."""
+    params: dict[str, str] = {}
+    for item in defines or []:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not _KEY.match(key):
+            raise UsageError(f"-D {item!r}: expected key=value with key a scene parameter name")
+        params[key] = value
+    return params
+
+
+def load_scene(path: str | Path, params: dict[str, str] | None = None):
+    """Load a Mitsuba scene file with ``$param`` overrides; errors become one-line UsageErrors.
+
+    The variant must be set and the plugins registered (:func:`pointillist.setup`).
+    """
+    import mitsuba as mi
+
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"scene: no such file: {path}")
+    try:
+        return mi.load_file(str(path), **(params or {}))
+    except RuntimeError as error:
+        raise UsageError(f"scene {path}: {mitsuba_message(error)}") from None
+
+
+@dataclass
+class RenderTiming:
+    """Seconds spent in each phase of a render.
+
+    ``trace``: Python building the Dr.Jit graph; ``compile``: LLVM code
+    generation and compilation of the kernels (near zero when the kernels come
+    from the ``~/.drjit`` cache); ``execute``: running the kernels;
+    ``total``: wall time from the render call until the image is evaluated.
+    """
+
+    trace: float
+    compile: float
+    execute: float
+    total: float
+    kernels: int
+    cache_hits: int
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 0, integrator=None):
+    """Render ``scene`` and return ``(image, RenderTiming)`` with the image evaluated.
+
+    Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
+    time of every JIT kernel launched by this render).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    dr.sync_thread()
+    flag = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clear
+    try:
+        start = time.perf_counter()
+        kwargs: dict[str, Any] = {"seed": seed, "sensor": sensor}
+        if spp:
+            kwargs["spp"] = spp
+        if integrator is not None:
+            kwargs["integrator"] = integrator
+        image = mi.render(scene, **kwargs)
+        traced = time.perf_counter()
+        dr.eval(image)
+        dr.sync_thread()
+        end = time.perf_counter()
+        history = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, flag)
+    jit = [k for k in history if "codegen_time" in k]
+    compile_s = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in jit) / 1000.0
+    compile_s = min(compile_s, end - traced)
+    timing = RenderTiming(
+        trace=traced - start,
+        compile=compile_s,
+        execute=max(end - traced - compile_s, 0.0),
+        total=end - start,
+        kernels=len(jit),
+        cache_hits=sum(1 for k in jit if k.get("cache_hit")),
+    )
+    return image, timing
+
+
+def scene_info(scene, sensor: int = 0) -> dict[str, Any]:
+    """Plugin names and settings of a loaded scene, for EXR metadata and reports."""
+    sensor_obj = scene.sensors()[sensor]
+    film = sensor_obj.film()
+    return {
+        "integrator": _plugin_id(scene.integrator()),
+        "sampler": _plugin_id(sensor_obj.sampler()),
+        "spp": int(sensor_obj.sampler().sample_count()),
+        "width": int(film.crop_size()[0]),
+        "height": int(film.crop_size()[1]),
+    }
+
+
+def _plugin_id(obj) -> str:
+    """The plugin type name of a Mitsuba object (e.g. ``path``, ``whitted``)."""
+    name = getattr(obj, "PLUGIN_NAME", None)
+    if name:
+        return name
+    text = obj.class_name() if hasattr(obj, "class_name") else type(obj).__name__
+    return _CLASS_TO_PLUGIN.get(text, text)
+
+
+_CLASS_TO_PLUGIN = {
+    "PathIntegrator": "path", "DirectIntegrator": "direct", "VolumetricPathIntegrator": "volpath",
+    "AOVIntegrator": "aov", "IndependentSampler": "independent", "StratifiedSampler": "stratified",
+    "MultijitterSampler": "multijitter", "OrthogonalSampler": "orthogonal", "LowDiscrepancySampler": "ldsampler",
+}

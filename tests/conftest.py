@@ -1,0 +1,42 @@
+"""Shared fixtures: the Mitsuba variant with pointillist's plugins, and a CLI runner."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = ROOT / "scenes"
+
+
+@pytest.fixture(scope="session")
+def mi():
+    """``mitsuba`` with the ``llvm_ad_rgb`` variant set and pointillist's plugins registered."""
+    import pointillist
+
+    return pointillist.setup("llvm_ad_rgb")
+
+
+@pytest.fixture(scope="session")
+def dr(mi):
+    import drjit
+
+    return drjit
+
+
+def run_cli(*args: str, cwd: str | os.PathLike | None = None, env: dict | None = None,
+            timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``python -m pointillist ARGS`` in a subprocess; returns the completed process."""
+    environment = dict(os.environ, **(env or {}))
+    return subprocess.run([sys.executable, "-m", "pointillist", *map(str, args)], cwd=cwd or ROOT,
+                          env=environment, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def cli():
+    """The :func:`run_cli` function (subprocess CLI runner)."""
+    return run_cli
