@@ -1,0 +1,95 @@
+"""`pointillist render` and plugin registration."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imaging.io import read_exr
+from pointillist.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT = ROOT / "scenes" / "default.xml"
+
+
+def test_register_is_idempotent_and_lists_plugins(mi):
+    import plugins
+
+    first = plugins.register()
+    assert plugins.register() == first == plugins.registered()
+    assert set(first.values()) <= {"integrator", "sampler", "bsdf"}
+    for name, kind in first.items():  # every registered plugin instantiates from a dict
+        assert kind in ("integrator", "sampler", "bsdf")
+
+
+def test_register_without_variant_errors(tmp_path):
+    import subprocess
+    import sys
+
+    code = "import plugins\ntry:\n    plugins.register()\nexcept RuntimeError as e:\n    print(e)\n"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert "no Mitsuba variant is set" in proc.stdout and "set_variant" in proc.stdout
+
+
+def test_render_cli_writes_exr_png_and_metadata(tmp_path, cli, mi):
+    out = tmp_path / "x.exr"
+    proc = cli("render", DEFAULT, "-o", out, "--spp", "4", "--seed", "3", "--png", "-D", "res=24")
+    assert proc.returncode == 0, proc.stderr
+    assert "JIT compile" in proc.stdout and "render" in proc.stdout and str(out) in proc.stdout
+    image, meta, layers = read_exr(out)
+    assert image.shape == (24, 24, 3) and np.isfinite(image).all() and image.mean() > 0.01
+    assert meta["spp"] == 4 and meta["seed"] == 3 and meta["width"] == 24
+    assert meta["integrator"] and meta["sampler"] == "independent"
+    for key in ("render_seconds", "compile_seconds", "execute_seconds", "trace_seconds"):
+        assert meta[key] >= 0.0
+    assert out.with_suffix(".png").stat().st_size > 100
+    # Same pixels as an in-process render of the same scene, spp and seed.
+    from pointillist.scene import load_scene, timed_render
+
+    expected, _ = timed_render(load_scene(DEFAULT, {"res": "24"}), spp=4, seed=3)
+    np.testing.assert_allclose(image, np.asarray(expected), rtol=1e-5, atol=1e-6)
+
+
+def _bad(capsys, *argv):
+    with pytest.raises(SystemExit) as info:
+        raise SystemExit(main([str(a) for a in argv]))
+    err = capsys.readouterr().err.strip().splitlines()
+    return info.value.code, err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "missing.xml"], "no such file"),
+    (["render", DEFAULT, "-D", "res"], "expected key=value"),
+    (["render", DEFAULT, "-D", "res=abc"], "could not parse integer value"),
+    (["render", DEFAULT, "-D", "nokey=1"], "unused parameters"),
+    (["render", DEFAULT, "--spp", "0"], "expected a positive integer"),
+    (["render", DEFAULT, "--seed", "-1"], "expected an integer in 0..2^32-1"),
+    (["render", DEFAULT, "-o", "x.png"], "expected a .exr file name"),
+    (["render", DEFAULT, "-o", "/nonexistent-folder/x.exr"], "does not exist"),
+    (["nosuchcommand"], "invalid choice"),
+])
+def test_render_bad_input_exit_2_one_line(capsys, tmp_path, mi, argv, message):
+    code, err = _bad(capsys, *argv)
+    assert code == 2 and len(err) == 1 and message in err[0], err
+
+
+def test_render_malformed_xml_and_unknown_plugin(capsys, tmp_path, mi):
+    broken = tmp_path / "broken.xml"
+    broken.write_text('<scene version="3.0.0"><integrator')
+    code, err = _bad(capsys, "render", broken, "-o", tmp_path / "a.exr")
+    assert code == 2 and len(err) == 1 and "failed" in err[0] and str(broken) in err[0]
+    unknown = tmp_path / "unknown.xml"
+    unknown.write_text(DEFAULT.read_text().replace('type="$integrator"', 'type="nosuchplugin"'))
+    code, err = _bad(capsys, "render", unknown, "-o", tmp_path / "b.exr")
+    assert code == 2 and len(err) == 1 and 'Plugin "nosuchplugin" not found' in err[0]
+    assert not list(tmp_path.glob("*.exr"))
+
+
+def test_render_refuses_to_overwrite_its_input(capsys, tmp_path, mi):
+    scene = tmp_path / "scene.exr"
+    scene.write_text(DEFAULT.read_text())
+    code, err = _bad(capsys, "render", scene, "-o", scene)
+    assert code == 2 and "refusing to overwrite" in err[0]
+    assert scene.read_text() == DEFAULT.read_text()
