@@ -13,6 +13,7 @@ PYTEST_ARGS ?=
 .PHONY: demo test setup system venv clean
 
 demo: setup
+	@mkdir -p out
 	$(VENV)/bin/pointillist render scenes/default.xml -o out/default.exr --png
 
 test: setup
