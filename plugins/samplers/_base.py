@@ -1,0 +1,201 @@
+"""Shared machinery of pointillist's image-plane pattern samplers (grid, jitter, poisson).
+
+Every pattern sampler draws its numbers from a counter-based hash, as pbrt-v4's
+samplers do, so that any (pixel, sample) is reproducible on its own:
+
+- ``seed(seed, wavefront_size)`` gets ``W * H * spp`` lanes laid out as
+  ``lane = pixel * spp + sample`` (Mitsuba's single-pass wavefront). Each lane keeps
+  two keys: ``pixel_key = TEA(base_seed + seed, pixel)`` and
+  ``sample_key = TEA(pixel_key, sample)``.
+- The first 2D request after ``seed``/``advance`` (``dimension == 0``: the film
+  position asked for by ``SamplingIntegrator.render_sample``) returns the
+  sampler's image-plane pattern for ``(pixel, sample)``.
+- Every other request (lens, time, light, BSDF ...) returns
+  ``x = fmix32(sample_key ^ dimension * 0x9E3779B9)``, ``y = fmix32(x ^ c)``
+  (MurmurHash3's finaliser): uniform numbers decorrelated from the pattern, from
+  other dimensions, pixels and seeds.
+
+The dimension counter is a Dr.Jit ``UInt32`` (never a Python int) so that it is
+loop state inside the integrators' symbolic loops (NOTES-mitsuba.md); the seed
+is opaque so a new seed does not recompile the kernels.
+
+Sub-classes implement ``_pattern(sample, pixel_key) -> (x, y)`` in [0, 1)^2 and
+``_configure(spp)`` (called on construction and by ``set_sample_count``).
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+__all__ = ["PatternSampler", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG"]
+
+#: Rounds of the Tiny Encryption Algorithm per hash: 4, Mitsuba's own default for
+#: ``sample_tea_32`` (Zafar, Olano, Curtis, "GPU random numbers via the tiny
+#: encryption algorithm", HPG 2010, found 4 rounds enough for image synthesis).
+TEA_ROUNDS = 4
+
+#: Second TEA input for the per-pixel random offset (the Poisson sampler's
+#: Cranley-Patterson shift); sample indices never reach it.
+PIXEL_OFFSET_TAG = 0xFFFFFFFF
+
+
+#: Weyl-sequence step (2^32 / golden ratio) that spreads dimension indices over 32 bits.
+GOLDEN_GAMMA = 0x9E3779B9
+
+
+def fmix32(h):
+    """MurmurHash3's 32-bit finaliser (Appleby, public domain): a bijective avalanche mix."""
+    h = h ^ (h >> 16)
+    h = h * mi.UInt32(0x85EBCA6B)
+    h = h ^ (h >> 13)
+    h = h * mi.UInt32(0xC2B2AE35)
+    return h ^ (h >> 16)
+
+
+def unit_float(bits):
+    """Map uniformly distributed ``UInt32`` bits to a float32 in [0, 1).
+
+    Uses the 24 high bits (float32 has a 24-bit significand), so 1.0 is never returned.
+    """
+    return mi.Float(bits >> 8) * (1.0 / 16777216.0)
+
+
+def grid_shape(spp: int) -> tuple[int, int]:
+    """The rectangular grid ``(rows, cols)`` with ``rows * cols == spp`` closest to square.
+
+    ``rows`` is the largest divisor of ``spp`` that is at most ``sqrt(spp)``, so
+    ``cols >= rows``. Perfect squares give ``sqrt(spp) x sqrt(spp)``; 8 gives 2 x 4;
+    a prime gives 1 x spp.
+
+    >>> grid_shape(16), grid_shape(8), grid_shape(12), grid_shape(7), grid_shape(1)
+    ((4, 4), (2, 4), (3, 4), (1, 7), (1, 1))
+    """
+    if not isinstance(spp, int) or spp < 1:
+        raise ValueError(f"sample_count: expected a positive integer, got {spp!r}")
+    rows = int(spp ** 0.5)
+    while rows * rows > spp:
+        rows -= 1
+    while spp % rows:
+        rows -= 1
+    return rows, spp // rows
+
+
+class PatternSampler(mi.Sampler):
+    """Base class: an image-plane pattern at dimension 0, hashed random numbers elsewhere."""
+
+    def __init__(self, props: mi.Properties):
+        super().__init__(props)
+        spp = int(self.sample_count())
+        if spp < 1:
+            raise ValueError(f"{type(self).__name__}: sample_count must be >= 1, got {spp}")
+        self._base_seed = int(props.get("seed", 0))
+        self._configure(spp)
+        self._reset_state()
+
+    # -- per-lane state ---------------------------------------------------------------
+    def _reset_state(self) -> None:
+        self.m_pixel_key = mi.UInt32(0)
+        self.m_sample_key = mi.UInt32(0)
+        self.m_sample = mi.UInt32(0)
+        self.m_dim = dr.opaque(mi.UInt32, 0)
+        self._pattern_pending = True
+
+    def seed(self, seed=0, wavefront_size: int = 2**32 - 1) -> None:
+        super().seed(seed, wavefront_size)
+        size = int(self.wavefront_size())
+        spp = int(self.sample_count())
+        seed_value = mi.UInt32(seed) + mi.UInt32(self._base_seed & 0xFFFFFFFF)
+        dr.make_opaque(seed_value)
+        lane = dr.arange(mi.UInt32, size)
+        spp_opaque = dr.opaque(mi.UInt32, spp)
+        pixel = lane // spp_opaque
+        sample = lane - pixel * spp_opaque
+        self.m_pixel_key = mi.sample_tea_32(seed_value, pixel, TEA_ROUNDS)[0]
+        self.m_sample_key = mi.sample_tea_32(self.m_pixel_key, sample, TEA_ROUNDS)[0]
+        self.m_sample = sample
+        self.m_dim = dr.opaque(mi.UInt32, 0)
+        self._pattern_pending = True
+
+    def advance(self) -> None:
+        """Start the next pass: dimension 0 again, fresh random numbers (new sample keys)."""
+        super().advance()
+        self.m_sample_key = mi.sample_tea_32(self.m_sample_key, mi.UInt32(0x9E3779B9), TEA_ROUNDS)[0]
+        self.m_dim = dr.opaque(mi.UInt32, 0)
+        self._pattern_pending = True
+
+    def schedule_state(self) -> None:
+        dr.schedule(self.m_pixel_key, self.m_sample_key, self.m_sample, self.m_dim)
+
+    def set_sample_count(self, spp: int) -> None:
+        spp = int(spp)
+        if spp < 1:
+            raise ValueError(f"{type(self).__name__}: sample_count must be >= 1, got {spp}")
+        super().set_sample_count(spp)
+        self._configure(spp)
+
+    # -- numbers ------------------------------------------------------------------------
+    def _random_2d(self):
+        # TEA with 4 rounds left consecutive dimensions correlated (|r| up to 0.09 over
+        # 32000 lanes); MurmurHash3's finaliser of key ^ dim * golden gamma does not.
+        v0 = fmix32(self.m_sample_key ^ (self.m_dim * mi.UInt32(GOLDEN_GAMMA)))
+        v1 = fmix32(v0 ^ mi.UInt32(0x68E31DA4))
+        return unit_float(v0), unit_float(v1)
+
+    def next_1d(self, active=True):
+        x, _ = self._random_2d()
+        self.m_dim += 1
+        return x
+
+    def next_2d(self, active=True):
+        rx, ry = self._random_2d()
+        if self._pattern_pending:
+            # The film position is the first 2D request after seed()/advance(); the
+            # select keeps this right when that request happens inside a symbolic loop.
+            self._pattern_pending = False
+            px, py = self._pattern(self.m_sample, self.m_pixel_key)
+            first = self.m_dim == 0
+            rx = dr.select(first, px, rx)
+            ry = dr.select(first, py, ry)
+        self.m_dim += 1
+        return mi.Point2f(rx, ry)
+
+    # -- copies ---------------------------------------------------------------------------
+    def _copy_config(self, other: "PatternSampler") -> None:
+        """Copy the pattern configuration (not the per-lane state) into ``other``."""
+        other._base_seed = self._base_seed
+
+    def _new(self) -> "PatternSampler":
+        props = mi.Properties()
+        props["sample_count"] = int(self.sample_count())
+        props["seed"] = int(self._base_seed)
+        for key, value in self._extra_properties().items():
+            props[key] = value
+        return type(self)(props)
+
+    def _extra_properties(self) -> dict:
+        return {}
+
+    def fork(self):
+        return self._new()
+
+    def clone(self):
+        other = self._new()
+        if self.wavefront_size():
+            mi.Sampler.seed(other, 0, int(self.wavefront_size()))
+        other.m_pixel_key = mi.UInt32(self.m_pixel_key)
+        other.m_sample_key = mi.UInt32(self.m_sample_key)
+        other.m_sample = mi.UInt32(self.m_sample)
+        other.m_dim = mi.UInt32(self.m_dim)
+        other._pattern_pending = self._pattern_pending
+        return other
+
+    # -- to be provided ---------------------------------------------------------------------
+    def _configure(self, spp: int) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _pattern(self, sample, pixel_key):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def to_string(self) -> str:
+        return f"{type(self).__name__}[sample_count={self.sample_count()}, seed={self._base_seed}]"
