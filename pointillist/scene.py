@@ -101,11 +101,14 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
         dr.set_flag(dr.JitFlag.KernelHistory, flag)
     jit = [k for k in history if "codegen_time" in k]
     compile_s = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in jit) / 1000.0
-    compile_s = min(compile_s, end - traced)
+    # mi.render(evaluate=True) launches its kernels itself, so compilation and
+    # execution may happen before `traced`: split the whole span with the history.
+    compile_s = min(compile_s, end - start)
+    execute_s = min(sum(k.get("execution_time", 0.0) for k in jit) / 1000.0, end - start - compile_s)
     timing = RenderTiming(
-        trace=traced - start,
+        trace=max(end - start - compile_s - execute_s, 0.0),
         compile=compile_s,
-        execute=max(end - traced - compile_s, 0.0),
+        execute=execute_s,
         total=end - start,
         kernels=len(jit),
         cache_hits=sum(1 for k in jit if k.get("cache_hit")),
