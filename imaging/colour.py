@@ -1,0 +1,317 @@
+"""Colour: RGB <-> HSV, Rec. 709 luminance and the sRGB transfer curves (SPEC "Colour").
+
+Every function takes a numpy array or a Dr.Jit tensor and returns a
+``drjit.llvm.TensorXf``; the work is one fused Dr.Jit kernel per call (no
+Python loop over pixels), and per-call scalars are opaque so that kernels are
+compiled once and then reused.
+
+Notes
+-----
+=================  =========================  ================================
+Function           Domain                     Range
+=================  =========================  ================================
+``rgb_to_hsv``     RGB, any real (0..1 usual)  H [0, 360), S [0, 1] for RGB >= 0,
+                                               V = max(R, G, B) (input units)
+``hsv_to_rgb``     H any (wrapped mod 360),    RGB in V's units
+                   S [0, 1], V any
+``luminance``      RGB linear, any real        Y = 0.2126 R + 0.7152 G + 0.0722 B
+``srgb_encode``    linear [0, 1]               encoded [0, 1]
+``srgb_decode``    encoded [0, 1]              linear [0, 1]
+=================  =========================  ================================
+
+Non-finite input: NaN is read as 0 everywhere. In ``rgb_to_hsv`` and
+``hsv_to_rgb`` infinities are clamped to +-1e30 (so H and S stay defined); the
+sRGB curves map +inf to +inf and -inf to -inf (the linear segment).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+from drjit.llvm import Array3f, Float
+
+from imaging._array import TensorXf, as_tensor
+
+__all__ = [
+    "REC709_LUMINANCE_WEIGHTS",
+    "rgb_to_hsv",
+    "hsv_to_rgb",
+    "luminance",
+    "adjust_hsv",
+    "srgb_encode",
+    "srgb_decode",
+]
+
+#: Rec. 709 / sRGB luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.3).
+REC709_LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
+
+#: sRGB transfer function constants (IEC 61966-2-1:1999, as in colour-science's ``eotf_inverse_sRGB``).
+SRGB_LINEAR_THRESHOLD = 0.0031308
+SRGB_ENCODED_THRESHOLD = 0.04045
+SRGB_SLOPE = 12.92
+SRGB_SCALE = 1.055
+SRGB_OFFSET = 0.055
+SRGB_EXPONENT = 2.4
+
+#: Magnitude that infinities are clamped to in the HSV conversions.
+_HUGE = 1e30
+
+
+def _rgb(image: Any, name: str = "image") -> tuple[TensorXf, Array3f]:
+    tensor = as_tensor(image, name)
+    if tensor.ndim != 3 or tensor.shape[2] != 3:
+        raise ValueError(f"{name}: expected an RGB image of shape (H, W, 3), got shape {tuple(tensor.shape)}")
+    return tensor, dr.unravel(Array3f, tensor.array)
+
+
+def _finite(values: Float) -> Float:
+    """NaN -> 0, +-inf -> +-1e30."""
+    return dr.select(dr.isnan(values), 0.0, dr.clip(values, -_HUGE, _HUGE))
+
+
+def _hsv_from_rgb(r: Float, g: Float, b: Float) -> tuple[Float, Float, Float]:
+    """HSV of linear R, G, B arrays (OpenCV's float formula; ties resolve R, then G, then B)."""
+    v = dr.maximum(dr.maximum(r, g), b)
+    delta = v - dr.minimum(dr.minimum(r, g), b)
+    s = dr.select(v > 0.0, delta / v, 0.0)
+    inv = dr.select(delta > 0.0, 60.0 / delta, 0.0)
+    h = dr.select(v == r, (g - b) * inv,
+                  dr.select(v == g, 120.0 + (b - r) * inv, 240.0 + (r - g) * inv))
+    h = dr.select(delta > 0.0, h, 0.0)
+    h = dr.select(h < 0.0, h + 360.0, h)
+    return h, s, v
+
+
+def _rgb_from_hsv(h: Float, s: Float, v: Float) -> tuple[Float, Float, Float]:
+    """R, G, B of H (degrees, wrapped), S, V arrays (the hexcone sectors)."""
+    h = h * (1.0 / 60.0)
+    h = h - 6.0 * dr.floor(h * (1.0 / 6.0))  # wrap to [0, 6)
+    sector = dr.floor(h)
+    f = h - sector
+    sector = dr.select(sector >= 6.0, 0.0, sector)
+    p = v * (1.0 - s)
+    q = v * (1.0 - s * f)
+    t = v * (1.0 - s * (1.0 - f))
+    # sector:   0  1  2  3  4  5
+    # R:        v  q  p  p  t  v
+    # G:        t  v  v  q  p  p
+    # B:        p  p  t  v  v  q
+    r = dr.select(sector < 1.0, v, dr.select(sector < 2.0, q, dr.select(sector < 4.0, p,
+                  dr.select(sector < 5.0, t, v))))
+    g = dr.select(sector < 1.0, t, dr.select(sector < 3.0, v, dr.select(sector < 4.0, q, p)))
+    b = dr.select(sector < 2.0, p, dr.select(sector < 3.0, t, dr.select(sector < 5.0, v, q)))
+    return r, g, b
+
+
+def rgb_to_hsv(image: Any) -> TensorXf:
+    """Convert an RGB image to HSV (hue in degrees, saturation, value).
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W, 3)
+        RGB values, usually 0..1 (0..255 works too: V keeps the input's units).
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        (H, W, 3): H in [0, 360) degrees, S = (max - min) / max in [0, 1],
+        V = max(R, G, B). Greys (max = min) have H = 0 and S = 0; black has
+        S = 0. This is OpenCV's ``cvtColor(..., COLOR_RGB2HSV)`` for float32
+        input. Negative components are allowed (S may then exceed 1).
+
+    Raises
+    ------
+    ValueError
+        If ``image`` is not (H, W, 3).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import rgb_to_hsv
+    >>> np.asarray(rgb_to_hsv(np.array([[[1.0, 0.5, 0.0]]]))).round(3).tolist()
+    [[[30.0, 1.0, 1.0]]]
+    """
+    tensor, rgb = _rgb(image)
+    h, s, v = _hsv_from_rgb(_finite(rgb.x), _finite(rgb.y), _finite(rgb.z))
+    return TensorXf(dr.ravel(Array3f(h, s, v)), tensor.shape)
+
+
+def hsv_to_rgb(image: Any) -> TensorXf:
+    """Convert an HSV image (hue in degrees) back to RGB.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W, 3)
+        H in degrees (any value: wrapped modulo 360, so 360 is 0 and -60 is
+        300), S in [0, 1] (not clipped), V in the RGB units wanted.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        (H, W, 3) RGB; the inverse of :func:`rgb_to_hsv` (round trip to float32
+        rounding). S = 0 gives grey (V, V, V); V = 0 gives black.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import hsv_to_rgb
+    >>> np.asarray(hsv_to_rgb(np.array([[[240.0, 1.0, 0.5]]]))).tolist()
+    [[[0.0, 0.0, 0.5]]]
+    """
+    tensor, hsv = _rgb(image)
+    r, g, b = _rgb_from_hsv(_finite(hsv.x), _finite(hsv.y), _finite(hsv.z))
+    return TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape)
+
+
+def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: float = 1.0) -> TensorXf:
+    """Shift the hue and scale the saturation and value of an RGB image (through HSV).
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W, 3)
+        RGB values (any units: V keeps them).
+    hue : float
+        Degrees added to H (wrapped modulo 360).
+    saturation : float
+        >= 0, factor on S; the result is clipped to S <= 1 (0 gives grey).
+    value : float
+        >= 0, factor on V (not clipped: display steps clip when writing).
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        (H, W, 3) RGB. hue = 0, saturation = value = 1 is the identity (to float32
+        rounding); greys keep S = 0 whatever the hue shift.
+
+    Raises
+    ------
+    ValueError
+        If a factor is negative or a value is not finite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import adjust_hsv
+    >>> np.asarray(adjust_hsv(np.array([[[1.0, 0.0, 0.0]]]), hue=120)).tolist()
+    [[[0.0, 1.0, 0.0]]]
+    """
+    checked = []
+    for number, name, low in ((hue, "hue", None), (saturation, "saturation", 0.0), (value, "value", 0.0)):
+        if isinstance(number, bool) or not isinstance(number, (int, float)) and not hasattr(number, "__float__"):
+            raise TypeError(f"{name}: expected a number, got {type(number).__name__} {number!r}")
+        number = float(number)
+        if number != number or number in (float("inf"), float("-inf")):
+            raise ValueError(f"{name}: expected a finite number, got {number}")
+        if low is not None and number < low:
+            raise ValueError(f"{name}: expected a factor >= 0, got {number}")
+        checked.append(dr.opaque(Float, number))
+    shift, s_scale, v_scale = checked
+    tensor, rgb = _rgb(image)
+    h, s, v = _hsv_from_rgb(_finite(rgb.x), _finite(rgb.y), _finite(rgb.z))
+    r, g, b = _rgb_from_hsv(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
+    return TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape)
+
+
+def luminance(image: Any) -> TensorXf:
+    """Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W), (H, W, 1) or (H, W, 3)
+        Linear RGB (on display-encoded values this gives luma, the usual
+        "convert to grey"). Grey input is returned unchanged as (H, W).
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        (H, W). NaN components count as 0.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import luminance
+    >>> np.asarray(luminance(np.ones((1, 2, 3)))).round(6).tolist()
+    [[1.0, 1.0]]
+    """
+    tensor = as_tensor(image, channels=(1, 3))
+    height, width = tensor.shape[:2]
+    if tensor.ndim == 2 or tensor.shape[2] == 1:
+        return TensorXf(dr.select(dr.isnan(tensor.array), 0.0, tensor.array), (height, width))
+    rgb = dr.unravel(Array3f, tensor.array)
+    wr, wg, wb = REC709_LUMINANCE_WEIGHTS
+    y = wr * rgb.x + wg * rgb.y + wb * rgb.z
+    return TensorXf(dr.select(dr.isnan(y), 0.0, y), (height, width))
+
+
+def _encode(values: Float) -> Float:
+    """sRGB encoding of linear values (colour-science's ``eotf_inverse_sRGB``), NaN -> 0."""
+    values = dr.select(dr.isnan(values), 0.0, values)
+    # 1.055 p - 0.055 written as 1.055 (p - 1) + 1 (1.055 - 0.055 = 1): white encodes to exactly 1
+    power = SRGB_SCALE * (dr.power(dr.maximum(values, SRGB_LINEAR_THRESHOLD), 1.0 / SRGB_EXPONENT) - 1.0) + 1.0
+    return dr.select(values <= SRGB_LINEAR_THRESHOLD, values * SRGB_SLOPE, power)
+
+
+def _decode(values: Float) -> Float:
+    """sRGB decoding of encoded values (colour-science's ``eotf_sRGB``), NaN -> 0."""
+    values = dr.select(dr.isnan(values), 0.0, values)
+    base = (dr.maximum(values, SRGB_ENCODED_THRESHOLD) + SRGB_OFFSET) * (1.0 / SRGB_SCALE)
+    return dr.select(values <= SRGB_ENCODED_THRESHOLD, values * (1.0 / SRGB_SLOPE), dr.power(base, SRGB_EXPONENT))
+
+
+def srgb_encode(image: Any) -> TensorXf:
+    """Apply the sRGB encoding curve (linear light -> display values), per component.
+
+    V = 12.92 L for L <= 0.0031308, else 1.055 L^(1/2.4) - 0.055 (IEC 61966-2-1),
+    the same piecewise curve as ``colour.cctf_encoding(L, function="sRGB")``.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Linear values, 0..1 for the display range.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape, encoded values (0 -> 0, 1 -> 1). Outside 0..1 the curve
+        is extended as colour-science does: negative values stay on the linear
+        segment, values above 1 follow the power segment (+inf stays +inf).
+        NaN becomes 0.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import srgb_encode
+    >>> np.asarray(srgb_encode(np.array([[0.0, 0.18, 1.0]])), dtype=float).round(4).tolist()
+    [[0.0, 0.4614, 1.0]]
+    """
+    tensor = as_tensor(image)
+    return TensorXf(_encode(tensor.array), tensor.shape)
+
+
+def srgb_decode(image: Any) -> TensorXf:
+    """Apply the sRGB decoding curve (display values -> linear light); inverse of :func:`srgb_encode`.
+
+    L = V / 12.92 for V <= 0.04045, else ((V + 0.055) / 1.055)^2.4, as
+    ``colour.cctf_decoding(V, function="sRGB")``.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Encoded values, 0..1 for the display range.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape, linear values; negative values stay on the linear segment,
+        NaN becomes 0.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.colour import srgb_decode
+    >>> np.asarray(srgb_decode(np.array([[0.0, 0.5, 1.0]])), dtype=float).round(4).tolist()
+    [[0.0, 0.214, 1.0]]
+    """
+    tensor = as_tensor(image)
+    return TensorXf(_decode(tensor.array), tensor.shape)

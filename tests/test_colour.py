@@ -1,0 +1,129 @@
+"""imaging.colour against OpenCV (HSV), colour-science (sRGB curves, Rec. 709 weights) and hand cases."""
+
+from __future__ import annotations
+
+import colour
+import cv2
+import numpy as np
+import pytest
+
+from imaging.colour import (REC709_LUMINANCE_WEIGHTS, adjust_hsv, hsv_to_rgb, luminance, rgb_to_hsv,
+                            srgb_decode, srgb_encode)
+
+
+def _rgb_samples() -> np.ndarray:
+    rng = np.random.default_rng(5)
+    image = rng.random((24, 20, 3), dtype=np.float32)
+    special = np.array([[0, 0, 0], [1, 1, 1], [0.5, 0.5, 0.5], [1, 0, 0], [0, 1, 0], [0, 0, 1],
+                        [1, 1, 0], [0, 1, 1], [1, 0, 1], [0.2, 0.2, 0.7], [0.7, 0.2, 0.7],
+                        [0.3, 0.9, 0.3]], np.float32)
+    image.reshape(-1, 3)[: len(special)] = special
+    return image
+
+
+def test_rgb_to_hsv_matches_opencv():
+    image = _rgb_samples()
+    ours = np.asarray(rgb_to_hsv(image))
+    ref = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    # hue: OpenCV rounds 60/delta differently; a thousandth of a degree is float32 noise here
+    np.testing.assert_allclose(ours[..., 0], ref[..., 0], atol=2e-3)
+    np.testing.assert_allclose(ours[..., 1:], ref[..., 1:], atol=2e-6)
+
+
+def test_hsv_hand_cases():
+    cases = {(1.0, 0.5, 0.0): (30.0, 1.0, 1.0), (0.0, 0.0, 0.5): (240.0, 1.0, 0.5),
+             (0.5, 0.5, 0.5): (0.0, 0.0, 0.5), (0.0, 0.0, 0.0): (0.0, 0.0, 0.0),
+             (1.0, 0.0, 0.5): (330.0, 1.0, 1.0), (0.25, 0.5, 0.5): (180.0, 0.5, 0.5),
+             # OpenCV divides by V + FLT_EPSILON and gives S = 0.456 here; S = (max - min) / max = 1
+             (1e-7, 0.0, 0.0): (0.0, 1.0, 1e-7)}
+    rgb = np.array([[list(k) for k in cases]], np.float32)
+    expected = np.array([[list(v) for v in cases.values()]], np.float32)
+    np.testing.assert_allclose(np.asarray(rgb_to_hsv(rgb)), expected, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(hsv_to_rgb(expected)), rgb, atol=1e-6)
+
+
+def test_hsv_to_rgb_matches_opencv_and_round_trips():
+    image = _rgb_samples()
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    np.testing.assert_allclose(np.asarray(hsv_to_rgb(hsv)), cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), atol=2e-6)
+    back = np.asarray(hsv_to_rgb(rgb_to_hsv(image)))
+    np.testing.assert_allclose(back, image, atol=2e-6)
+    # 0..255 input keeps its units in V
+    np.testing.assert_allclose(np.asarray(hsv_to_rgb(rgb_to_hsv(image * 255))), image * 255, atol=5e-4)
+
+
+def test_hue_wraps_modulo_360():
+    base = np.array([[[0.0, 1.0, 1.0], [300.0, 0.5, 0.8]]], np.float32)
+    shifted = base + np.array([360.0, 0, 0], np.float32)
+    negative = base - np.array([360.0, 0, 0], np.float32)
+    ref = np.asarray(hsv_to_rgb(base))
+    np.testing.assert_allclose(np.asarray(hsv_to_rgb(shifted)), ref, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(hsv_to_rgb(negative)), ref, atol=1e-6)
+    np.testing.assert_allclose(ref[0, 0], [1.0, 0.0, 0.0])
+
+
+def test_hsv_non_finite_and_one_pixel():
+    hsv = np.asarray(rgb_to_hsv(np.array([[[np.nan, 0.5, 0.25]]], np.float32)))
+    np.testing.assert_allclose(hsv, cv2.cvtColor(np.array([[[0, 0.5, 0.25]]], np.float32), cv2.COLOR_RGB2HSV),
+                               atol=1e-4)
+    inf = np.asarray(rgb_to_hsv(np.array([[[np.inf, 0.0, 0.0]]], np.float32)))
+    assert np.all(np.isfinite(inf)) and inf[0, 0, 0] == 0 and inf[0, 0, 1] == 1
+    assert np.asarray(rgb_to_hsv(np.zeros((1, 1, 3)))).tolist() == [[[0.0, 0.0, 0.0]]]
+
+
+def test_adjust_hsv():
+    image = _rgb_samples()
+    np.testing.assert_allclose(np.asarray(adjust_hsv(image)), image, atol=2e-6)
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    hsv[..., 0] = (hsv[..., 0] + 90) % 360
+    hsv[..., 1] = np.minimum(hsv[..., 1] * 1.5, 1)
+    hsv[..., 2] *= 0.5
+    np.testing.assert_allclose(np.asarray(adjust_hsv(image, hue=90, saturation=1.5, value=0.5)),
+                               cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), atol=1e-5)
+    grey = np.asarray(adjust_hsv(image, saturation=0))
+    np.testing.assert_allclose(grey, np.repeat(image.max(axis=2, keepdims=True), 3, axis=2), atol=1e-6)
+    with pytest.raises(ValueError, match="saturation"):
+        adjust_hsv(image, saturation=-1)
+    with pytest.raises(ValueError, match="hue"):
+        adjust_hsv(image, hue=np.inf)
+
+
+def test_luminance_uses_rec709_weights():
+    matrix = colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ
+    np.testing.assert_allclose(REC709_LUMINANCE_WEIGHTS, matrix[1], atol=2e-4)
+    image = _rgb_samples()
+    np.testing.assert_allclose(np.asarray(luminance(image)), image @ np.array(REC709_LUMINANCE_WEIGHTS),
+                               rtol=1e-6, atol=1e-7)
+    assert np.asarray(luminance(np.ones((2, 2, 3)))).shape == (2, 2)
+    grey = np.arange(6, dtype=np.float32).reshape(2, 3)
+    np.testing.assert_array_equal(np.asarray(luminance(grey)), grey)
+    np.testing.assert_array_equal(np.asarray(luminance(grey[..., None])), grey)
+    assert np.asarray(luminance(np.array([[[np.nan, 1, 1]]]))).item() == 0.0
+
+
+def test_srgb_curves_match_colour_science():
+    values = np.concatenate([np.linspace(-0.5, 2.0, 2001), [0.0031308, 0.04045, 1e-6, 1e4]]).astype(np.float32)
+    image = values.reshape(5, -1)
+    ref = colour.cctf_encoding(image.astype(np.float64), function="sRGB")
+    np.testing.assert_allclose(np.asarray(srgb_encode(image)), ref, rtol=2e-6, atol=2e-7)
+    ref = colour.cctf_decoding(image.astype(np.float64), function="sRGB")
+    np.testing.assert_allclose(np.asarray(srgb_decode(image)), ref, rtol=5e-6, atol=2e-7)
+    unit = np.linspace(0, 1, 257, dtype=np.float32).reshape(1, -1)
+    np.testing.assert_allclose(np.asarray(srgb_decode(srgb_encode(unit))), unit, atol=1e-6)
+    ends = np.asarray(srgb_encode(np.array([[0.0, 1.0, np.nan, np.inf]])))
+    assert ends.tolist() == [[0.0, 1.0, 0.0, np.inf]]
+
+
+@pytest.mark.parametrize("function", [rgb_to_hsv, hsv_to_rgb, adjust_hsv])
+def test_hsv_needs_three_channels(function):
+    with pytest.raises(ValueError, match="image"):
+        function(np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="image"):
+        function(np.zeros((4, 4, 4)))
+    with pytest.raises(TypeError, match="image"):
+        function("not an image")
+
+
+def test_luminance_rejects_two_channels():
+    with pytest.raises(ValueError, match="channels"):
+        luminance(np.zeros((2, 2, 2)))
