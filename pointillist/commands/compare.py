@@ -1,0 +1,117 @@
+"""Compare sampling patterns on one scene: error against a reference versus run time and spp.
+
+Renders SCENE with each sampler at each sample count (and seed), measures each
+render's wall time (JIT compilation reported apart) and its RMSE, relative MSE and
+FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
+(table, fitted slopes, equal-time ranking), DIR/error_vs_time.png,
+DIR/error_vs_spp.png and the renders (DIR/renders/*.exr). Finished renders are
+kept: running the same command again resumes an interrupted sweep.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pointillist.commands.render import positive_int
+from pointillist.errors import UsageError
+
+NAME = "compare"
+HELP = "compare samplers: error vs time and spp against a reference"
+
+
+def spp_list(text: str) -> list[int]:
+    """argparse type: comma-separated positive integers (``1,4,16``)."""
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return sorted(set(values))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP
+
+    parser.add_argument("scene", help="Mitsuba scene XML file")
+    parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
+                        help="comma-separated samplers: grid, jitter, random, poisson, and Mitsuba's "
+                             "independent, stratified, multijitter, orthogonal, ldsampler "
+                             f"(default {','.join(DEFAULT_METHODS)})")
+    parser.add_argument("--spp", type=spp_list, default=list(DEFAULT_SPP),
+                        help=f"samples per pixel to sweep (default {','.join(map(str, DEFAULT_SPP))})")
+    parser.add_argument("--seeds", type=positive_int, default=1,
+                        help="renders per point with seeds 0..K-1; mean and spread reported (default 1)")
+    reference = parser.add_mutually_exclusive_group()
+    reference.add_argument("--reference-spp", type=positive_int, default=4096,
+                           help="samples per pixel of the reference render, Mitsuba's stratified "
+                                "sampler, cached in DIR/reference (default 4096)")
+    reference.add_argument("--reference", metavar="FILE.exr", help="use this EXR as the reference")
+    parser.add_argument("--out", metavar="DIR", help="output folder (default out/compare/<scene name>)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scene parameter ($KEY in the XML); repeatable")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pointillist.compare import Task, render_reference, resolve_methods, run_sweep, write_report
+    from pointillist.scene import parse_defines
+
+    params = parse_defines(args.defines)
+    methods = resolve_methods(args.samplers)
+    scene = Path(args.scene)
+    if not scene.is_file():
+        raise UsageError(f"scene: no such file: {scene}")
+    out = Path(args.out) if args.out else Path("out") / "compare" / scene.stem
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} exists and is not a folder")
+    if args.reference and not Path(args.reference).is_file():
+        raise UsageError(f"--reference: no such file: {args.reference}")
+    out.mkdir(parents=True, exist_ok=True)
+
+    tasks = []
+    for method in methods:
+        values = args.spp if method.parameter == "spp" else list(method.values)
+        if not values:
+            raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
+        tasks += [Task(method.name, v, seed) for v in values for seed in range(args.seeds)]
+
+    if args.reference:
+        reference = Path(args.reference)
+    else:
+        print(f"reference: {args.reference_spp} spp with Mitsuba's stratified sampler "
+              f"(cached in {out / 'reference'})", flush=True)
+        reference = render_reference(str(scene), params, str(out), args.reference_spp)
+    _check_reference(reference, scene, params)
+
+    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
+                        progress=not args.no_progress)
+    paths = write_report(records, out, scene=str(scene), reference=str(reference),
+                         title=f"Sampler comparison: {scene.name}")
+    done = sum(1 for r in records if not r.cached)
+    print(f"{len(records)} renders ({done} new, {len(records) - done} reused) in {out}")
+    print(f"wrote {paths['csv']}, {paths['md']}, {paths['time_plot']}, {paths['spp_plot']}")
+    return 0
+
+
+def _check_reference(reference: Path, scene: Path, params: dict) -> None:
+    """The reference must have the render size; read its header only through read_exr."""
+    from imaging.io import read_exr
+
+    try:
+        image = read_exr(reference).image
+    except ValueError as error:
+        raise UsageError(f"--reference: {error}") from None
+    import pointillist
+
+    pointillist.setup()
+    from pointillist.scene import load_scene, scene_info
+
+    info = scene_info(load_scene(scene, params))
+    if image.shape[:2] != (info["height"], info["width"]):
+        raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
+                         f"renders {info['width']}x{info['height']}")
+
+
+__all__ = ["NAME", "HELP", "add_arguments", "run", "spp_list"]

@@ -1,0 +1,212 @@
+"""Tests of the sampler comparison workflow (pointillist/compare.py) and `pointillist compare`."""
+
+from __future__ import annotations
+
+import csv
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pointillist.compare import (METHODS, Method, RenderRecord, Task, configure_scene,
+                                 equal_time_ranking, fit_slope, image_errors, resolve_methods)
+from pointillist.errors import UsageError
+
+ROOT = Path(__file__).resolve().parent.parent
+EDGES = ROOT / "scenes" / "edges.xml"
+
+
+# ------------------------------------------------------------------ scene configuration
+def test_configure_scene_swaps_every_sensor_sampler():
+    xml = """<scene version="3.0.0">
+      <default name="spp" value="8"/>
+      <sensor type="perspective"><sampler type="stratified"><integer name="sample_count" value="$spp"/>
+        <boolean name="jitter" value="false"/></sampler><film type="hdrfilm"/></sensor>
+      <sensor type="orthographic"><film type="hdrfilm"/></sensor>
+    </scene>"""
+    root = ET.fromstring(configure_scene(xml, METHODS["poisson"], 64))
+    samplers = root.findall("sensor/sampler")
+    assert [s.get("type") for s in samplers] == ["poisson", "poisson"]  # added where missing
+    for sampler in samplers:  # only sample_count is kept (stratified's jitter is dropped)
+        assert [(p.tag, p.get("name"), p.get("value")) for p in sampler] == [("integer", "sample_count", "64")]
+    assert root.find("sensor/film") is not None and root.find("default").get("name") == "spp"
+    root = ET.fromstring(configure_scene(xml, METHODS["random"], 4))
+    assert root.find("sensor/sampler").get("type") == "independent"
+
+
+def test_configure_scene_integrator_method_and_errors():
+    method = Method("thresh", "path", kind="integrator", parameter="max_depth", values=(3,))
+    root = ET.fromstring(configure_scene('<scene version="3.0.0"><integrator type="direct"/>'
+                                         '<sensor type="perspective"/></scene>', method, 3))
+    integrators = root.findall("integrator")
+    assert len(integrators) == 1 and integrators[0].get("type") == "path"
+    assert integrators[0][0].get("name") == "max_depth" and float(integrators[0][0].get("value")) == 3
+    with pytest.raises(UsageError, match="no <sensor>"):
+        configure_scene('<scene version="3.0.0"/>', METHODS["grid"], 4)
+    with pytest.raises(UsageError, match="not valid XML"):
+        configure_scene("<scene", METHODS["grid"], 4)
+
+
+def test_resolve_methods():
+    assert [m.name for m in resolve_methods("grid, jitter,random,poisson,stratified,grid")] == [
+        "grid", "jitter", "random", "poisson", "stratified"]
+    with pytest.raises(UsageError, match="unknown sampler 'nope'"):
+        resolve_methods("grid,nope")
+    with pytest.raises(UsageError):
+        resolve_methods(" , ")
+
+
+def test_user_scene_elsewhere_resolves_relative_paths(mi, tmp_path):
+    """Any scene works: its sampler is replaced and its relative files still resolve."""
+    from pointillist.compare import load_configured_scene
+
+    folder = tmp_path / "user"
+    folder.mkdir()
+    (folder / "part.xml").write_text('<scene version="3.0.0"><emitter type="constant">'
+                                     '<rgb name="radiance" value="0.25"/></emitter></scene>')
+    (folder / "scene.xml").write_text(
+        '<scene version="3.0.0"><integrator type="direct"/>'
+        '<sensor type="perspective"><sampler type="multijitter"><integer name="sample_count" value="9"/>'
+        '</sampler><film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/>'
+        '</film></sensor><include filename="part.xml"/></scene>')
+    scene = load_configured_scene(folder / "scene.xml", METHODS["jitter"], 16)
+    sampler = scene.sensors()[0].sampler()
+    assert "JitterSampler" in str(sampler) and sampler.sample_count() == 16
+    np.testing.assert_allclose(np.asarray(mi.render(scene)), 0.25, rtol=1e-3)
+
+
+# ------------------------------------------------------------------------------ errors
+def test_image_errors_hand_worked():
+    ref = np.zeros((2, 2, 3), np.float32)
+    ref[0, 0] = 1.0
+    img = ref.copy()
+    img[1, 1] = 0.3  # one pixel off by 0.3 in 3 of 12 values
+    e = image_errors(img, ref)
+    assert math.isclose(e["rmse"], math.sqrt(3 * 0.09 / 12), rel_tol=1e-6)
+    assert math.isclose(e["relmse"], 3 * 0.09 / 0.01 / 12, rel_tol=1e-5)
+    assert e["flip"] > 0
+    same = image_errors(ref, ref)
+    assert same["rmse"] == 0 and same["relmse"] == 0 and same["flip"] == 0
+    # relative MSE divides by ref^2 + 0.01
+    e = image_errors(np.full((1, 1, 3), 3.0), np.full((1, 1, 3), 2.0), flip=False)
+    assert math.isclose(e["relmse"], 1 / 4.01, rel_tol=1e-9)
+    # grey images compare as RGB; NaN is reported, not hidden
+    assert image_errors(np.ones((3, 3)), np.ones((3, 3)))["rmse"] == 0
+    assert math.isnan(image_errors(np.full((3, 3, 3), np.nan), np.ones((3, 3, 3)))["rmse"])
+    with pytest.raises(ValueError, match="shape"):
+        image_errors(np.ones((3, 3, 3)), np.ones((4, 3, 3)))
+
+
+def test_flip_against_flip_reference_ldr_agrees_in_order():
+    """FLIP grows with the error (independent check: more noise, larger FLIP)."""
+    rng = np.random.default_rng(0)
+    ref = np.full((32, 32, 3), 0.5, np.float32)
+    small = image_errors(ref + rng.normal(0, 0.01, ref.shape).astype(np.float32), ref)["flip"]
+    large = image_errors(ref + rng.normal(0, 0.1, ref.shape).astype(np.float32), ref)["flip"]
+    assert 0 < small < large
+
+
+def test_fit_slope_exact_power_law():
+    spp = np.array([1, 4, 16, 64, 256])
+    assert math.isclose(fit_slope(spp, 3.0 * spp ** -1.5), -1.5, rel_tol=1e-9)
+    assert math.isclose(fit_slope(spp, 0.2 / spp), -1.0, rel_tol=1e-9)
+    assert math.isnan(fit_slope([4], [1.0]))
+    assert math.isclose(fit_slope([1, 2, 0, 4], [1, 0.5, 7, 0.25]), -1.0)  # x = 0 ignored
+
+
+def test_equal_time_ranking_hand_case():
+    rows = [
+        {"method": "a", "time": 1.0, "mse": 0.5}, {"method": "a", "time": 4.0, "mse": 0.1},
+        {"method": "b", "time": 2.0, "mse": 0.2}, {"method": "b", "time": 8.0, "mse": 0.01},
+    ]
+    ranking = dict(equal_time_ranking(rows, budgets=[1.0, 2.0, 5.0, 10.0]))
+    assert ranking[1.0] == [("a", 0.5)]
+    assert ranking[2.0] == [("b", 0.2), ("a", 0.5)]
+    assert ranking[5.0] == [("a", 0.1), ("b", 0.2)]
+    assert ranking[10.0] == [("b", 0.01), ("a", 0.1)]
+    assert equal_time_ranking(rows, budgets=[0.5]) == [(0.5, [])]
+
+
+# ------------------------------------------------------------------------ render_one
+def test_render_one_writes_and_reuses(mi, tmp_path):
+    from imaging.io import read_exr
+    from pointillist.compare import render_one, task_paths
+
+    params = {"res": "12"}
+    record = render_one(str(EDGES), "jitter", 4, 0, params, str(tmp_path))
+    assert isinstance(record, RenderRecord) and not record.cached
+    assert record.spp == 4 and (record.width, record.height) == (12, 12)
+    assert record.total >= record.compile >= 0 and record.time >= 0
+    exr, js = task_paths(tmp_path, Task("jitter", 4, 0), record.scene_key)
+    assert record.exr == f"{record.scene_key}/{exr.name}"
+    image, meta, _ = read_exr(exr)
+    assert image.shape == (12, 12, 3) and meta["sampler"] == "jitter" and meta["spp"] == 4
+    stamp = exr.stat().st_mtime_ns
+    again = render_one(str(EDGES), "jitter", 4, 0, params, str(tmp_path))
+    assert again.cached and exr.stat().st_mtime_ns == stamp and again.exr == record.exr
+    # other parameters: another scene key, so the cache is not reused
+    other = render_one(str(EDGES), "jitter", 4, 0, {"res": "8"}, str(tmp_path))
+    assert not other.cached and other.width == 8
+    # a sampler that rounds the count reports what it took (stratified: a square)
+    rounded = render_one(str(EDGES), "stratified", 8, 0, params, str(tmp_path))
+    assert rounded.spp == 9
+
+
+def test_render_one_is_picklable():
+    import pickle
+
+    from pointillist.compare import render_one
+
+    assert pickle.loads(pickle.dumps(render_one)) is render_one
+    assert pickle.loads(pickle.dumps(Task("poisson", 16, 2))) == Task("poisson", 16, 2)
+
+
+# --------------------------------------------------------------------------------- CLI
+def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
+    out = tmp_path / "cmp"
+    args = ["compare", EDGES, "-D", "res=16", "--spp", "1,4,16", "--reference-spp", "64",
+            "--seeds", "2", "--out", out, "--no-progress"]
+    done = cli(*args)
+    assert done.returncode == 0, done.stderr
+    assert "24 renders (24 new, 0 reused)" in done.stdout
+    for name in ("results.csv", "results.md", "error_vs_time.png", "error_vs_spp.png"):
+        assert (out / name).stat().st_size > 0
+    with open(out / "results.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 4 * 3 * 2
+    assert {r["method"] for r in rows} == {"grid", "jitter", "random", "poisson"}
+    for r in rows:
+        assert (out / r["exr"]).is_file()
+        assert float(r["rmse"]) > 0 and float(r["flip"]) > 0 and float(r["time"]) >= 0
+    text = (out / "results.md").read_text()
+    assert "Equal-time ranking" in text and "MSE vs spp" in text
+    # error falls with spp for every sampler (mean over seeds)
+    for method in ("grid", "jitter", "random", "poisson"):
+        mse = [np.mean([float(r["rmse"]) ** 2 for r in rows if r["method"] == method and r["spp"] == s])
+               for s in ("1.0", "4.0", "16.0")]
+        assert mse[0] > mse[1] > mse[2], (method, mse)
+    again = cli(*args)
+    assert again.returncode == 0 and "(0 new, 24 reused)" in again.stdout
+
+
+def test_cli_compare_reference_file_and_bad_input(cli, tmp_path):
+    from imaging.io import write_exr
+
+    ref = tmp_path / "ref.exr"
+    write_exr(ref, np.full((8, 8, 3), 0.1, np.float32))
+    done = cli("compare", EDGES, "-D", "res=8", "--spp", "2", "--samplers", "jitter", "--reference", ref,
+               "--out", tmp_path / "o", "--no-progress")
+    assert done.returncode == 0, done.stderr
+    assert not (tmp_path / "o" / "reference").exists()  # no reference rendered
+    bad = cli("compare", EDGES, "--samplers", "grid,bogus", "--out", tmp_path / "x")
+    assert bad.returncode == 2 and "unknown sampler 'bogus'" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
+    wrong = cli("compare", EDGES, "-D", "res=16", "--reference", ref, "--out", tmp_path / "y")
+    assert wrong.returncode == 2 and "8x8" in wrong.stderr and "16x16" in wrong.stderr
+    for spp in ("0", "a,b", "4,-1"):
+        r = cli("compare", EDGES, "--spp", spp)
+        assert r.returncode == 2 and "--spp" in r.stderr
+    missing = cli("compare", tmp_path / "none.xml")
+    assert missing.returncode == 2 and "no such file" in missing.stderr
