@@ -1,0 +1,756 @@
+"""Tone operations: gamma, contrast stretching, histogram equalisation, quantisation,
+look-up tables and HDR tone mapping (SPEC "Imaging definitions").
+
+Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
+(H, W, C) and returns a ``drjit.llvm.TensorXf`` (``np.asarray`` gives numpy).
+The display-domain operations work on intensities 0..``max_value`` (255 by
+default); :func:`tonemap` turns linear HDR renders into such intensities.
+
+8-bit input (a numpy ``uint8`` array) is served by a 256-entry look-up table
+computed with the same formula, read four pixels per 32-bit word without
+converting the image to float first.
+
+Notes
+-----
+Non-finite input (the policy of every function here): NaN becomes 0, +inf
+becomes white (``max_value``; 255 after :func:`tonemap`), -inf becomes 0, and a
+:class:`NonFiniteWarning` reports how many values were replaced.
+
+======================  ==============================  ==========================
+Function                Domain                          Range
+======================  ==============================  ==========================
+``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)
+``contrast_stretch``    clipped to [0, max_value]       [0, max_value]
+``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]
+``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]
+``lut``                 rounded, clipped to 0..255       the table's values
+``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]
+                        at 1e15 after exposure)
+======================  ==============================  ==========================
+"""
+
+from __future__ import annotations
+
+import numbers
+import sys
+import warnings
+from typing import Any, Callable
+
+import drjit as dr
+import numpy as np
+from drjit.llvm import Array3f, Float, Float64, UInt32, UInt64
+
+from imaging._array import TensorXf, _check_shape, as_tensor
+from imaging.colour import REC709_LUMINANCE_WEIGHTS, _encode, _hsv_from_rgb, _rgb_from_hsv
+
+__all__ = [
+    "NonFiniteWarning",
+    "TONEMAP_OPERATORS",
+    "HABLE_CONSTANTS",
+    "ACES_CONSTANTS",
+    "gamma",
+    "contrast_stretch",
+    "equalize_histogram",
+    "histogram",
+    "quantize",
+    "lut",
+    "tonemap",
+    "dynamic_range",
+]
+
+#: Hable's filmic curve (J. Hable, "Uncharted 2: HDR Lighting", GDC 2010): shoulder strength A,
+#: linear strength B, linear angle C, toe strength D, toe numerator E, toe denominator F,
+#: linear white point W, and the exposure bias applied before the curve.
+HABLE_CONSTANTS = {"A": 0.15, "B": 0.50, "C": 0.10, "D": 0.20, "E": 0.02, "F": 0.30,
+                   "W": 11.2, "exposure_bias": 2.0}
+
+#: K. Narkowicz, "ACES Filmic Tone Mapping Curve" (2016): x (a x + b) / (x (c x + d) + e).
+ACES_CONSTANTS = {"a": 2.51, "b": 0.03, "c": 2.43, "d": 0.59, "e": 0.14}
+
+#: Tone-mapping operators and the extra keyword parameters each accepts.
+TONEMAP_OPERATORS: dict[str, tuple[str, ...]] = {
+    "clip": (),
+    "reinhard": ("white",),
+    "reinhard_extended": ("white",),
+    "hable": ("white",),
+    "aces": (),
+    "log": ("white",),
+}
+
+#: Linear values are clamped here after exposure: every operator is saturated far below, and
+#: the curves' squares stay finite in float32.
+_HDR_MAX = 1e15
+
+
+class NonFiniteWarning(RuntimeWarning):
+    """NaN or infinite input values were replaced (NaN -> 0, +inf -> white, -inf -> 0)."""
+
+
+# --------------------------------------------------------------------------- argument checks
+
+def _number(value: Any, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ValueError(f"{name}: expected a finite number, got {value}")
+    return value
+
+
+def _positive(value: Any, name: str) -> float:
+    value = _number(value, name)
+    if value <= 0:
+        raise ValueError(f"{name}: expected a number > 0, got {value}")
+    return value
+
+
+def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name}: expected an integer, got {type(value).__name__} {value!r}")
+    if not 2 <= int(value) <= high:
+        raise ValueError(f"{name}: expected an integer in 2..{high}, got {value}")
+    return int(value)
+
+
+def _opaque(value: float) -> Float:
+    return dr.opaque(Float, float(value))
+
+
+# --------------------------------------------------------------------------- shared machinery
+
+def _is_uint8(image: Any) -> bool:
+    return isinstance(image, np.ndarray) and image.dtype == np.uint8
+
+
+def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
+    """Per-pixel UInt32 values of a uint8 image, read from packed 32-bit words without conversion.
+
+    Returns ``(values, shape, words)``; ``words`` is the packed UInt32 view (or None when the
+    image cannot be viewed as whole little-endian words).
+    """
+    _check_shape(image.shape, name, None, False)
+    flat = np.ascontiguousarray(image).reshape(-1)
+    n = flat.size
+    if n % 4 == 0 and flat.ctypes.data % 4 == 0 and sys.byteorder == "little":
+        words = UInt32(flat.view(np.uint32))
+        i = dr.arange(UInt32, n)
+        values = (dr.gather(UInt32, words, i >> 2) >> ((i & 3) << 3)) & 0xFF
+        return values, tuple(image.shape), words
+    return UInt32(flat.astype(np.uint32)), tuple(image.shape), None
+
+
+def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
+    """NaN -> 0, +inf -> ``white``, -inf -> 0; also returns a counter of the replaced values."""
+    bad = ~dr.isfinite(values)
+    count = dr.zeros(UInt32, 1)
+    dr.scatter_add(count, 1, UInt32(0), active=bad)
+    clean = dr.select(bad, dr.select(values > 0, white, 0.0), values)
+    return clean, count
+
+
+def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
+    """Evaluate ``result`` together with the non-finite counter and warn with the count."""
+    dr.eval(result, count)
+    n = int(count[0])
+    if n:
+        warnings.warn(f"{where}: replaced {n} non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)",
+                      NonFiniteWarning, stacklevel=3)
+    return result
+
+
+def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float, where: str) -> TensorXf:
+    """Apply ``function`` per value; uint8 input through a 256-entry table of the same function."""
+    if _is_uint8(image):
+        table = function(dr.arange(Float, 256))
+        values, shape, _ = _u8_indices(image)
+        result = TensorXf(dr.gather(Float, table, values), shape)
+        dr.eval(result)
+        return result
+    tensor = as_tensor(image)
+    clean, count = _sanitize(tensor.array, max_value)
+    return _finish(TensorXf(function(clean), tensor.shape), count, where)
+
+
+# --------------------------------------------------------------------------- operations
+
+def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf:
+    """Gamma correction V = (I / a)^(1/gamma) on intensities normalised to 0..1.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Intensities on 0..``max_value``. ``uint8`` input goes through a 256-entry table.
+    gamma : float
+        > 0. gamma < 1 darkens (encoding), gamma > 1 lightens (decoding), 1 is the identity.
+    a : float
+        > 0, the normalising constant of the SPEC formula (1: ``max_value`` maps to itself).
+    max_value : float
+        > 0, the intensity of white (255).
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        ``max_value * (I / max_value / a)^(1/gamma)``, same shape.
+
+    Raises
+    ------
+    ValueError
+        If ``gamma``, ``a`` or ``max_value`` is not a finite number > 0.
+
+    Notes
+    -----
+    Edges: 0 stays 0 and white stays white for every gamma (a = 1). gamma -> 0
+    (e.g. 1e-3) sends everything below white to 0; a huge gamma (1e3) sends
+    everything above 0 to almost white. Negative input is clipped to 0;
+    values above ``max_value`` follow the same power curve. NaN -> 0,
+    +inf -> white with a :class:`NonFiniteWarning`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import gamma
+    >>> np.asarray(gamma(np.array([[0.0, 63.75, 255.0]]), 0.5), dtype=float).round(3).tolist()
+    [[0.0, 15.938, 255.0]]
+    """
+    g = _positive(gamma, "gamma")
+    a = _positive(a, "a")
+    max_value = _positive(max_value, "max_value")
+    scale, exponent, top = _opaque(1.0 / (a * max_value)), _opaque(1.0 / g), _opaque(max_value)
+
+    def curve(x: Float) -> Float:
+        return top * dr.power(dr.maximum(x, 0.0) * scale, exponent)
+
+    return _pointwise(image, curve, max_value, "gamma")
+
+
+def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
+                     max_value: float = 255.0) -> TensorXf:
+    """Piecewise-linear contrast stretching through (0, 0), (r1, s1), (r2, s2), (max, max).
+
+    out = s1/r1 in for in < r1; (s2 - s1)/(r2 - r1) (in - r1) + s1 for r1 <= in <= r2;
+    (max - s2)/(max - r2) (in - r2) + s2 for in > r2.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Intensities; clipped to 0..``max_value`` first. ``uint8`` input goes through a table.
+    r1, r2 : float
+        Input breakpoints, 0 <= r1 <= r2 <= max_value.
+    s1, s2 : float
+        Output values at the breakpoints, each in 0..max_value (s1 > s2 inverts the middle).
+    max_value : float
+        > 0, the intensity of white.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape, values in 0..max_value.
+
+    Raises
+    ------
+    ValueError
+        If a breakpoint is outside 0..max_value or r1 > r2.
+
+    Notes
+    -----
+    Degenerate breakpoints never divide by zero: r1 = 0 drops the first segment,
+    r2 = max drops the last; r1 = r2 = r drops the middle one, making a step:
+    values below r follow the first segment, values at or above r the last
+    (so r1 = r2 = r, s1 = 0, s2 = max is the SPEC threshold at r). Through
+    (r1, r1) and (r2, r2) the stretch is the identity. NaN -> 0, +inf -> white
+    with a :class:`NonFiniteWarning`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import contrast_stretch
+    >>> np.asarray(contrast_stretch(np.array([[0, 50, 100, 150, 255]]), 50, 25, 150, 230)).tolist()
+    [[0.0, 25.0, 127.5, 230.0, 255.0]]
+    """
+    max_value = _positive(max_value, "max_value")
+    r1, s1, r2, s2 = (_number(v, n) for v, n in ((r1, "r1"), (s1, "s1"), (r2, "r2"), (s2, "s2")))
+    for value, name in ((r1, "r1"), (r2, "r2"), (s1, "s1"), (s2, "s2")):
+        if not 0.0 <= value <= max_value:
+            raise ValueError(f"{name}: expected a value in 0..{max_value:g}, got {value:g}")
+    if r1 > r2:
+        raise ValueError(f"r1: expected r1 <= r2, got r1 = {r1:g} > r2 = {r2:g}")
+    slope1 = s1 / r1 if r1 > 0 else 0.0
+    slope2 = (s2 - s1) / (r2 - r1) if r2 > r1 else 0.0
+    slope3 = (max_value - s2) / (max_value - r2) if r2 < max_value else 0.0
+    # With r1 == r2 the middle segment is empty: its upper bound sits just below r1.
+    upper = r2 if r2 > r1 else float(np.nextafter(np.float32(r1), np.float32(-np.inf)))
+    k1, k2, k3 = _opaque(slope1), _opaque(slope2), _opaque(slope3)
+    b1, b2, top = _opaque(r1), _opaque(r2), _opaque(max_value)
+    o1, o2, mid_top = _opaque(s1), _opaque(s2), _opaque(upper)
+
+    def curve(x: Float) -> Float:
+        x = dr.clip(x, 0.0, top)
+        return dr.select(x < b1, k1 * x,
+                         dr.select(x <= mid_top, k2 * (x - b1) + o1, k3 * (x - b2) + o2))
+
+    return _pointwise(image, curve, max_value, "contrast_stretch")
+
+
+def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
+    """Quantise to ``levels`` evenly spaced grey levels spanning 0..max_value.
+
+    k = min(floor(I * levels / max_value), levels - 1), out = k * max_value / (levels - 1).
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Intensities; clipped to 0..max_value. ``uint8`` input goes through a table.
+    levels : int
+        Number of output levels, 2..2^24 (256 on 0..255 integers is the identity).
+    max_value : float
+        > 0, the intensity of white.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape, at most ``levels`` distinct values, always including 0 and
+        max_value when the input reaches them.
+
+    Raises
+    ------
+    ValueError
+        If ``levels`` < 2.
+
+    Notes
+    -----
+    levels = 2 is a threshold at max_value / 2. A constant image stays one
+    level. NaN -> 0, +inf -> white with a :class:`NonFiniteWarning`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import quantize
+    >>> np.asarray(quantize(np.array([[0, 63, 64, 200, 255]]), 4)).tolist()
+    [[0.0, 0.0, 85.0, 255.0, 255.0]]
+    """
+    levels = _levels(levels)
+    max_value = _positive(max_value, "max_value")
+    n, top, step = _opaque(levels), _opaque(max_value), _opaque(max_value / (levels - 1))
+    last = _opaque(levels - 1)
+
+    def curve(x: Float) -> Float:
+        k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
+        return k * step
+
+    return _pointwise(image, curve, max_value, "quantize")
+
+
+def _table(table: Any, channels: int) -> tuple[Float, int]:
+    try:
+        values = np.asarray(table, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"table: expected an array of numbers, got {type(table).__name__}") from error
+    if values.ndim == 2 and values.shape[1] == 1:
+        values = values[:, 0]
+    if values.shape != (256,) and values.shape != (256, channels):
+        allowed = "(256,)" + (f" or (256, {channels})" if channels > 1 else "")
+        raise ValueError(f"table: expected shape {allowed}, got {values.shape}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError("table: expected finite values")
+    width = 1 if values.ndim == 1 else channels
+    return Float(np.ascontiguousarray(values, dtype=np.float32).reshape(-1)), width
+
+
+def lut(image: Any, table: Any) -> TensorXf:
+    """Apply a 256-entry look-up table to 8-bit data: out = table[I].
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        8-bit intensities. ``uint8`` arrays are read as they are (no float
+        conversion); other input is rounded to the nearest integer (half to
+        even) and clipped to 0..255.
+    table : array_like, (256,) or (256, C)
+        The value of each input level; (256, C) gives one table per channel (as ``cv2.LUT``).
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape as ``image``, float32 table values.
+
+    Raises
+    ------
+    ValueError
+        If ``table`` has another shape or non-finite entries.
+
+    Notes
+    -----
+    NaN reads entry 0, +inf entry 255, with a :class:`NonFiniteWarning`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import lut
+    >>> np.asarray(lut(np.array([[0, 1, 255]], np.uint8), 255 - np.arange(256))).tolist()
+    [[255.0, 254.0, 0.0]]
+    """
+    if _is_uint8(image):
+        values, shape, _ = _u8_indices(image)
+        channels = shape[2] if len(shape) == 3 else 1
+        table, width = _table(table, channels)
+        index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
+        result = TensorXf(dr.gather(Float, table, index), shape)
+        dr.eval(result)
+        return result
+    tensor = as_tensor(image)
+    channels = tensor.shape[2] if tensor.ndim == 3 else 1
+    table, width = _table(table, channels)
+    clean, count = _sanitize(tensor.array, 255.0)
+    values = UInt32(dr.clip(dr.round(clean), 0.0, 255.0))
+    index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
+    return _finish(TensorXf(dr.gather(Float, table, index), tensor.shape), count, "lut")
+
+
+def _histogram_of(index_of: Callable[[UInt32], UInt32], n: int, levels: int,
+                  words: UInt32 | None = None) -> UInt32:
+    """Histogram (``levels`` bins) of ``index_of(pixel)`` over ``n`` pixels via ``dr.scatter_add``.
+
+    Pixels are counted in pairs into a levels^2 table (fewer colliding atomic
+    additions than ``levels`` bins), then the pair table is summed both ways.
+    """
+    if levels > 256:
+        hist = dr.zeros(UInt32, levels)
+        dr.scatter_add(hist, 1, index_of(dr.arange(UInt32, n)))
+        return hist
+    pairs = levels * levels
+    table = dr.zeros(UInt32, pairs + levels)
+    if words is not None:  # packed uint8, levels == 256: bytes (0,1) and (2,3) of each word
+        dr.scatter_add(table, 1, words & 0xFFFF)
+        dr.scatter_add(table, 1, words >> 16)
+        quads = n // 4
+    else:
+        quads = n // 4
+        if quads:
+            j = dr.arange(UInt32, quads) * 4
+            dr.scatter_add(table, 1, index_of(j) + levels * index_of(j + 1))
+            dr.scatter_add(table, 1, index_of(j + 2) + levels * index_of(j + 3))
+    rest = n - 4 * quads
+    if rest:
+        dr.scatter_add(table, 1, pairs + index_of(dr.arange(UInt32, rest) + 4 * quads))
+    bins = dr.arange(UInt32, levels)
+    by_high = dr.block_sum(dr.gather(UInt32, table, dr.arange(UInt32, pairs)), levels)
+    transposed = dr.arange(UInt32, pairs)
+    by_low = dr.block_sum(dr.gather(UInt32, table, (transposed % levels) * levels + transposed // levels), levels)
+    return by_high + by_low + dr.gather(UInt32, table, pairs + bins)
+
+
+def _equalization_table(hist: UInt32, n: int, levels: int, max_value: float) -> Float:
+    """Output value of each level: F(i) = max(0, round(L t(i) / (h w)) - 1), scaled to max_value.
+
+    round() is half to even, done exactly in integers.
+    """
+    t = UInt64(dr.cumsum(hist))
+    numerator = t * levels
+    total = dr.opaque(UInt64, n)
+    q = numerator // total
+    twice_r = 2 * (numerator - q * total)
+    q = dr.select((twice_r > total) | ((twice_r == total) & ((q & 1) == 1)), q + 1, q)
+    f = dr.select(q > 0, Float64(q) - 1.0, 0.0)
+    return Float(f * (max_value / (levels - 1)))
+
+
+def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.ndarray:
+    """Histogram of the intensities rounded to ``levels`` bins, as computed by :func:`equalize_histogram`.
+
+    Bin of I: clip(round(I (levels - 1) / max_value), 0, levels - 1); NaN counts in bin 0,
+    +inf in the last bin.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Intensities (all channels counted together).
+    levels : int
+        Number of bins, 2..65536.
+    max_value : float
+        > 0, the intensity of white.
+
+    Returns
+    -------
+    numpy.ndarray
+        int64 counts, shape (levels,), summing to the number of values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import histogram
+    >>> histogram(np.array([[0, 0, 255]], np.uint8))[[0, 1, 255]].tolist()
+    [2, 0, 1]
+    """
+    levels = _levels(levels, high=65536)
+    max_value = _positive(max_value, "max_value")
+    index_of, n, words, _, _ = _bin_indices(image, levels, max_value)
+    hist = _histogram_of(index_of, n, levels, words)
+    return np.asarray(hist).astype(np.int64)
+
+
+def _bin_indices(image: Any, levels: int, max_value: float):
+    """(index_of(pixel) -> bin, pixel count, packed words or None, shape, non-finite counter)."""
+    if _is_uint8(image) and levels == 256 and max_value == 255.0:
+        values, shape, words = _u8_indices(image)
+        source = values
+
+        def index_of(i: UInt32) -> UInt32:
+            return dr.gather(UInt32, source, i)
+
+        if words is None:
+            return index_of, dr.width(values), None, shape, None
+        # Read bytes straight from the packed words.
+        def index_packed(i: UInt32) -> UInt32:
+            return (dr.gather(UInt32, words, i >> 2) >> ((i & 3) << 3)) & 0xFF
+
+        return index_packed, dr.width(values), words, shape, None
+    tensor = as_tensor(image)
+    clean, count = _sanitize(tensor.array, max_value)
+    dr.eval(clean, count)
+    scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
+
+    def index_float(i: UInt32) -> UInt32:
+        x = dr.gather(Float, clean, i)
+        return UInt32(dr.clip(dr.round(x * scale), 0.0, last))
+
+    return index_float, dr.width(clean), None, tuple(tensor.shape), count
+
+
+def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf:
+    """Histogram equalisation (SPEC): F(i) = max(0, round(L t(i) / (h w)) - 1).
+
+    t(i) is the cumulative histogram of grey level i, L = ``levels``. Colour
+    images are equalised on the V (brightness) channel of HSV, keeping H and S.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W), (H, W, 1) or (H, W, 3)
+        Intensities on 0..max_value, binned as round(I (L - 1) / max_value)
+        (for 8-bit data and L = 256, the grey level itself). ``uint8`` grey
+        input is read without float conversion.
+    levels : int
+        Number of grey levels L, 2..65536.
+    max_value : float
+        > 0, the intensity of white.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape; level F(i) is output as F(i) max_value / (L - 1).
+
+    Raises
+    ------
+    ValueError
+        If ``levels`` is outside 2..65536 or the image has 2 or > 3 channels.
+
+    Notes
+    -----
+    A constant image (all pixels at level i) maps to L - 1 (white): t(i) = h w.
+    A one-pixel image therefore becomes white. All-black becomes white too
+    (the SPEC formula; OpenCV leaves such images unchanged). An image using
+    every level equally is unchanged (its histogram is already flat). NaN -> 0,
+    +inf -> white with a :class:`NonFiniteWarning`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import equalize_histogram
+    >>> np.asarray(equalize_histogram(np.array([[0, 0, 0, 255]], np.uint8))).tolist()
+    [[191.0, 191.0, 191.0, 255.0]]
+    """
+    levels = _levels(levels, high=65536)
+    max_value = _positive(max_value, "max_value")
+    if _is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:
+        image = image.astype(np.float32)
+    if not _is_uint8(image):
+        tensor = as_tensor(image, channels=(1, 3))
+        if tensor.ndim == 3 and tensor.shape[2] == 3:
+            return _equalize_colour(tensor, levels, max_value)
+    else:
+        _check_shape(image.shape, "image", (1,), False)
+    index_of, n, words, shape, count = _bin_indices(image, levels, max_value)
+    hist = _histogram_of(index_of, n, levels, words)
+    table = _equalization_table(hist, n, levels, max_value)
+    result = TensorXf(dr.gather(Float, table, index_of(dr.arange(UInt32, n))), shape)
+    if count is None:
+        dr.eval(result)
+        return result
+    return _finish(result, count, "equalize_histogram")
+
+
+def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorXf:
+    rgb = dr.unravel(Array3f, tensor.array)
+    bad = ~(dr.isfinite(rgb.x) & dr.isfinite(rgb.y) & dr.isfinite(rgb.z))
+    count = dr.zeros(UInt32, 1)
+    dr.scatter_add(count, 1, UInt32(0), active=bad)
+    top = _opaque(max_value)
+    channels = [dr.clip(dr.select(dr.isfinite(c), c, dr.select(c > 0, top, 0.0)), 0.0, top)
+                for c in (rgb.x, rgb.y, rgb.z)]
+    h, s, v = _hsv_from_rgb(*channels)
+    dr.eval(h, s, v, count)
+    n = dr.width(v)
+    scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
+
+    def index_of(i: UInt32) -> UInt32:
+        return UInt32(dr.clip(dr.round(dr.gather(Float, v, i) * scale), 0.0, last))
+
+    table = _equalization_table(_histogram_of(index_of, n, levels), n, levels, max_value)
+    v_new = dr.gather(Float, table, UInt32(dr.clip(dr.round(v * scale), 0.0, last)))
+    r, g, b = _rgb_from_hsv(h, s, v_new)
+    return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
+
+
+def _luminance(channels: list[Float]) -> Float:
+    if len(channels) == 1:
+        return channels[0]
+    wr, wg, wb = REC709_LUMINANCE_WEIGHTS
+    return wr * channels[0] + wg * channels[1] + wb * channels[2]
+
+
+def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params: Any) -> TensorXf:
+    """Tone-map a linear HDR render to display values 0..255 (curve, then the sRGB encoding).
+
+    The image is scaled by 2^exposure, mapped to 0..1 by ``operator``, clipped,
+    sRGB-encoded (:func:`imaging.colour.srgb_encode`) and scaled to 0..255.
+
+    Operators (x a linear value, L the Rec. 709 luminance, w the white point):
+
+    - ``clip``: x.
+    - ``reinhard``: Reinhard et al. 2002, eq. 4, on luminance:
+      L_d = L (1 + L / w^2) / (1 + L), colour scaled by L_d / L; w defaults
+      to the image's largest luminance (``white=inf`` gives L / (1 + L)).
+    - ``reinhard_extended``: the same curve on each channel; w defaults to the largest value.
+    - ``hable``: Hable's filmic curve f(2 x) / f(W), f(x) = (x (A x + C B) + D E) /
+      (x (A x + B) + D F) - E / F (:data:`HABLE_CONSTANTS`; ``white`` sets W = 11.2).
+    - ``aces``: Narkowicz's fit of the ACES filmic curve (:data:`ACES_CONSTANTS`).
+    - ``log``: logarithmic response L_d = log(1 + L) / log(1 + w) on luminance,
+      w defaults to the largest luminance.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W), (H, W, 1) or (H, W, 3)
+        Linear light (an EXR render).
+    operator : str
+        One of :data:`TONEMAP_OPERATORS`.
+    exposure : float
+        Stops: the image is multiplied by 2^exposure first; -100..100.
+    **params
+        ``white`` (> 0) for the operators that take it.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        Same shape, display values in [0, 255] (not rounded).
+
+    Raises
+    ------
+    ValueError
+        Unknown ``operator``, a parameter the operator does not take, a
+        non-positive ``white``, or ``exposure`` outside -100..100.
+
+    Notes
+    -----
+    Negative values become 0; values are clamped at 1e15 after exposure (all
+    curves are saturated long before; 1e30 maps to white without overflow).
+    NaN -> 0, +inf -> 255, -inf -> 0, with a :class:`NonFiniteWarning` giving
+    the count; the default white point ignores them. An all-black image stays
+    black. Luminance operators scale colour by L_d / L (hue kept); channels
+    above 1 after that are clipped.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import tonemap
+    >>> np.asarray(tonemap(np.array([[0.0, 1.0, 3.0]]), "reinhard", white=np.inf), dtype=float).round(2).tolist()
+    [[0.0, 187.52, 224.61]]
+    """
+    if not isinstance(operator, str) or operator not in TONEMAP_OPERATORS:
+        raise ValueError(f"operator: expected one of {', '.join(TONEMAP_OPERATORS)}, got {operator!r}")
+    exposure = _number(exposure, "exposure")
+    if abs(exposure) > 100:
+        raise ValueError(f"exposure: expected stops in -100..100, got {exposure:g}")
+    unknown = set(params) - set(TONEMAP_OPERATORS[operator])
+    if unknown:
+        allowed = ", ".join(TONEMAP_OPERATORS[operator]) or "none"
+        raise ValueError(f"{sorted(unknown)[0]}: not a parameter of tonemap operator {operator!r} "
+                         f"(it takes: {allowed})")
+    white = params.get("white")
+    if white is not None:
+        if isinstance(white, (bool, np.bool_)) or not isinstance(white, numbers.Real):
+            raise TypeError(f"white: expected a number, got {type(white).__name__} {white!r}")
+        white = float(white)
+        if not white > 0:  # NaN fails too
+            raise ValueError(f"white: expected a number > 0, got {white}")
+
+    tensor = as_tensor(image, channels=(1, 3))
+    nch = tensor.shape[2] if tensor.ndim == 3 else 1
+    flat = tensor.array
+    bad = ~dr.isfinite(flat)
+    count = dr.zeros(UInt32, 1)
+    dr.scatter_add(count, 1, UInt32(0), active=bad)
+    posinf = bad & (flat > 0)
+    x = dr.clip(dr.select(bad, 0.0, flat) * _opaque(2.0 ** exposure), 0.0, _HDR_MAX)
+    if nch == 3:
+        rgb = dr.unravel(Array3f, x)
+        channels = [rgb.x, rgb.y, rgb.z]
+    else:
+        channels = [x]
+
+    def white_point(values: Float) -> Float:
+        if white is not None:
+            return _opaque(min(white, _HDR_MAX))
+        return dr.maximum(dr.max(values), 1e-20)  # its own reduction pass
+
+    if operator == "clip":
+        mapped = channels
+    elif operator in ("reinhard", "log"):
+        lum = _luminance(channels)
+        w = white_point(lum)
+        if operator == "reinhard":
+            inv_w2 = 1.0 / (w * w)  # w = inf -> 0
+            mapped_l = lum * (1.0 + lum * inv_w2) / (1.0 + lum)
+        else:
+            mapped_l = dr.log(1.0 + lum) / dr.log(1.0 + w)
+        ratio = dr.select(lum > 0.0, mapped_l / lum, 0.0)
+        mapped = [c * ratio for c in channels]
+    elif operator == "reinhard_extended":
+        w = white_point(x)
+        inv_w2 = 1.0 / (w * w)
+        mapped = [c * (1.0 + c * inv_w2) / (1.0 + c) for c in channels]
+    elif operator == "hable":
+        k = HABLE_CONSTANTS
+        A, B, C, D, E, F = (k[n] for n in "ABCDEF")
+
+        def f(v):
+            return (v * (A * v + C * B) + D * E) / (v * (A * v + B) + D * F) - E / F
+
+        w = white if white is not None else k["W"]
+        norm = _opaque(1.0 / float(f(np.float64(min(w, _HDR_MAX)))))
+        mapped = [f(k["exposure_bias"] * c) * norm for c in channels]
+    else:  # aces
+        k = ACES_CONSTANTS
+        mapped = [(c * (k["a"] * c + k["b"])) / (c * (k["c"] * c + k["d"]) + k["e"]) for c in channels]
+
+    display = [_encode(dr.clip(m, 0.0, 1.0)) * 255.0 for m in mapped]
+    values = dr.ravel(Array3f(*display)) if nch == 3 else display[0]
+    values = dr.select(posinf, 255.0, values)
+    return _finish(TensorXf(values, tensor.shape), count, "tonemap")
+
+
+def dynamic_range(image: Any) -> float:
+    """The dynamic range: the span max - min of the finite values (0 for a constant image).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from imaging.tone import dynamic_range
+    >>> dynamic_range(np.array([[10, 200], [30, 40]]))
+    190.0
+    """
+    tensor = as_tensor(image)
+    finite = dr.isfinite(tensor.array)
+    if not dr.any(finite):
+        raise ValueError("image: has no finite values")
+    low = dr.min(dr.select(finite, tensor.array, np.inf))
+    high = dr.max(dr.select(finite, tensor.array, -np.inf))
+    return float(high[0] - low[0])

@@ -1,0 +1,66 @@
+"""``pointillist post`` steps for tone and colour (imaging.tone, imaging.colour).
+
+Examples: ``--steps "tonemap:reinhard,exposure=1;gamma:2.2"``,
+``--steps "tonemap:aces;equalize;quantize:8"``, ``--steps "stretch:50,20,200,235"``,
+``--steps "hsv:hue=30,saturation=1.2;grey"``, ``--steps "lut:curve.txt"``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from imaging import colour, tone
+from pointillist.steps import step
+
+
+@step("tonemap", params=("operator",), linear=True,
+      help="linear HDR -> display 0..255: operator " + "|".join(tone.TONEMAP_OPERATORS)
+           + " (default clip), exposure=STOPS, white=W (reinhard, reinhard_extended, hable, log)")
+def _tonemap(image, operator="clip", exposure=0.0, **params):
+    return tone.tonemap(image, operator, exposure, **params)
+
+
+@step("gamma", params=("gamma", "a"), help="gamma correction V = (I/a)^(1/gamma) on 0..1 (gamma > 1 lightens)")
+def _gamma(image, gamma, a=1.0):
+    return tone.gamma(image, gamma, a)
+
+
+@step("stretch", params=("r1", "s1", "r2", "s2"),
+      help="piecewise-linear contrast stretch through (r1,s1) and (r2,s2), 0 <= r1 <= r2 <= 255")
+def _stretch(image, r1, s1, r2, s2):
+    return tone.contrast_stretch(image, r1, s1, r2, s2)
+
+
+@step("equalize", params=("levels",), help="histogram equalisation (colour: on HSV V), levels default 256")
+def _equalize(image, levels=256):
+    return tone.equalize_histogram(image, levels)
+
+
+@step("quantize", params=("levels",), help="quantise to N evenly spaced grey levels")
+def _quantize(image, levels):
+    return tone.quantize(image, levels)
+
+
+@step("hsv", params=("hue", "saturation", "value"),
+      help="RGB only: shift hue by degrees, scale saturation and value (defaults 0,1,1)")
+def _hsv(image, hue=0.0, saturation=1.0, value=1.0):
+    return colour.adjust_hsv(image, hue=hue, saturation=saturation, value=value)
+
+
+@step("grey", help="Rec. 709 weighted grey (luma of display values); grey input unchanged")
+def _grey(image):
+    return colour.luminance(image)
+
+
+@step("lut", params=("file",), help="apply a 256-entry table read from a text or .npy file (one value per level)")
+def _lut(image, file):
+    path = Path(str(file))
+    if not path.is_file():
+        raise ValueError(f"lut: file: no such file: {path}")
+    try:
+        table = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, ndmin=1)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"lut: file: {path} is not a table of numbers ({error})") from None
+    return tone.lut(image, table)

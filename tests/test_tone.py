@@ -1,0 +1,396 @@
+"""imaging.tone against numpy written from the SPEC formulas, OpenCV, colour-science and hand cases."""
+
+from __future__ import annotations
+
+import warnings
+
+import colour
+import cv2
+import numpy as np
+import pytest
+
+from imaging.filters import threshold
+from imaging.io import to_8bit
+from imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch, dynamic_range,
+                          equalize_histogram, gamma, histogram, lut, quantize, tonemap)
+
+RNG = np.random.default_rng(7)
+GREY8 = RNG.integers(0, 256, (37, 53), dtype=np.uint8)          # odd size: not whole 32-bit words
+GREY8_PACKED = RNG.integers(20, 200, (32, 48), dtype=np.uint8)  # whole words: the packed path
+RGB8 = RNG.integers(0, 256, (16, 24, 3), dtype=np.uint8)
+
+
+def a(x):
+    return np.asarray(x)
+
+
+# ------------------------------------------------------------------------------------------ SPEC references
+
+def spec_equalize(levels_image: np.ndarray, levels: int) -> np.ndarray:
+    """F(i) = max(0, round(L t(i) / (h w)) - 1), on integer levels (numpy rounds half to even)."""
+    t = np.cumsum(np.bincount(levels_image.ravel(), minlength=levels))
+    f = np.maximum(0, np.round(levels * t / levels_image.size) - 1)
+    return f[levels_image]
+
+
+def spec_stretch(x, r1, s1, r2, s2, top=255.0):
+    x = np.clip(np.asarray(x, np.float64), 0, top)
+    first = s1 / r1 * x if r1 else 0 * x
+    middle = (s2 - s1) / (r2 - r1) * (x - r1) + s1 if r2 > r1 else 0 * x
+    last = (top - s2) / (top - r2) * (x - r2) + s2 if r2 < top else 0 * x
+    return np.where(x < r1, first, np.where(x <= r2, middle, last))
+
+
+def warned(function, *args, **kwargs):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = function(*args, **kwargs)
+    messages = [str(w.message) for w in caught if issubclass(w.category, NonFiniteWarning)]
+    return result, messages
+
+
+# ------------------------------------------------------------------------------------------ gamma
+
+def test_gamma_formula_and_opencv():
+    x = RNG.random((20, 30), dtype=np.float32) * 255
+    expected = 255 * (x / 255.0) ** (1 / 2.2)
+    np.testing.assert_allclose(a(gamma(x, 2.2)), expected, rtol=2e-6, atol=1e-4)
+    np.testing.assert_allclose(a(gamma(x, 2.2)), cv2.pow(x / 255.0, 1 / 2.2) * 255, rtol=2e-6, atol=1e-4)
+    np.testing.assert_allclose(a(gamma(x, 0.5, a=2.0)), 255 * (x / 255 / 2.0) ** 2, rtol=2e-6, atol=1e-4)
+    np.testing.assert_allclose(a(gamma(x / 255, 2.0, max_value=1.0)), np.sqrt(x / 255), rtol=2e-6)
+    np.testing.assert_allclose(a(gamma(x, 1.0)), x, rtol=2e-6)  # gamma 1: identity
+
+
+def test_gamma_uint8_table_equals_float_path():
+    np.testing.assert_array_equal(a(gamma(GREY8, 2.2)), a(gamma(GREY8.astype(np.float32), 2.2)))
+    np.testing.assert_array_equal(a(gamma(RGB8, 0.45)), a(gamma(RGB8.astype(np.float32), 0.45)))
+    np.testing.assert_array_equal(a(gamma(GREY8_PACKED, 3)), a(gamma(GREY8_PACKED.astype(np.float32), 3)))
+
+
+def test_gamma_extremes():
+    x = np.array([[0.0, 1.0, 128.0, 254.0, 255.0]], np.float32)
+    low, high = a(gamma(x, 1e-3)), a(gamma(x, 1e3))
+    assert low[0, 0] == 0 and low[0, -1] == 255 and np.all(low[0, 1:3] < 1e-3)
+    np.testing.assert_allclose(low[0, 3], 255 * (254 / 255) ** 1000, rtol=1e-4)   # 5.01
+    assert high[0, 0] == 0 and high[0, -1] == 255 and np.all(high[0, 1:4] > 250)
+    np.testing.assert_allclose(high[0, 1], 255 * (1 / 255) ** 1e-3, rtol=1e-5)
+    assert a(gamma(np.zeros((3, 3)), 2.2)).max() == 0            # all black
+    np.testing.assert_allclose(a(gamma(np.full((3, 3), 255.0), 0.3)), 255, rtol=1e-6)  # all white
+    assert a(gamma(np.array([[-5.0]]), 2)).item() == 0            # negative -> 0
+    assert np.isfinite(a(gamma(np.array([[1e30]]), 2.2))).all()   # huge stays finite
+    np.testing.assert_allclose(a(gamma(np.array([[100.0]]), 2.0)), [[255 * np.sqrt(100 / 255)]], rtol=1e-6)
+
+
+def test_gamma_non_finite_policy():
+    x = np.array([[np.nan, np.inf, -np.inf, 64.0]], np.float32)
+    result, messages = warned(gamma, x, 2.0)
+    np.testing.assert_allclose(a(result), [[0, 255, 0, 255 * np.sqrt(64 / 255)]], rtol=1e-6)
+    assert len(messages) == 1 and "3 non-finite" in messages[0]
+    _, none = warned(gamma, np.ones((2, 2)), 2.0)
+    assert none == []
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, np.nan, np.inf])
+def test_gamma_rejects_bad_gamma(bad):
+    with pytest.raises(ValueError, match="gamma"):
+        gamma(GREY8, bad)
+
+
+def test_gamma_bad_types_and_shapes():
+    with pytest.raises(TypeError, match="gamma"):
+        gamma(GREY8, "2.2")
+    with pytest.raises(ValueError, match="a:"):
+        gamma(GREY8, 2.2, a=0)
+    with pytest.raises(ValueError, match="image"):
+        gamma(np.zeros(5), 2.2)
+    with pytest.raises(ValueError, match="image"):
+        gamma(np.zeros((2, 2, 2, 2), np.uint8), 2.2)
+
+
+# ------------------------------------------------------------------------------------------ contrast stretch
+
+@pytest.mark.parametrize("points", [(50, 20, 200, 235), (10, 100, 100, 120), (100, 200, 150, 20),
+                                    (0, 30, 128, 200), (60, 0, 255, 240)])
+def test_stretch_matches_spec(points):
+    x = np.arange(256, dtype=np.float32).reshape(16, 16)
+    np.testing.assert_allclose(a(contrast_stretch(x, *points)), spec_stretch(x, *points), atol=1e-4)
+    np.testing.assert_array_equal(a(contrast_stretch(x.astype(np.uint8), *points)), a(contrast_stretch(x, *points)))
+
+
+def test_stretch_hand_case_and_identity():
+    x = np.array([[0, 25, 50, 100, 150, 200, 255]], np.float32)
+    x = np.array([[0, 25, 50, 100, 155, 205, 255]], np.float32)
+    # slopes 1/2, 2, 1/5 through (50, 25), (155, 235)
+    np.testing.assert_allclose(a(contrast_stretch(x, 50, 25, 155, 235)), [[0, 12.5, 25, 125, 235, 245, 255]],
+                               rtol=1e-6)
+    np.testing.assert_allclose(a(contrast_stretch(x, 40, 40, 180, 180)), x, atol=1e-5)
+    np.testing.assert_array_equal(a(contrast_stretch(RGB8, 0, 0, 255, 255)), RGB8.astype(np.float32))
+
+
+def test_stretch_degenerate_breakpoints():
+    x = np.arange(256, dtype=np.float32).reshape(1, -1)
+    # r1 = r2: a step, at or above r -> last segment; s1 = 0, s2 = 255 is the SPEC threshold
+    np.testing.assert_array_equal(a(contrast_stretch(x, 128, 0, 128, 255)), a(threshold(x, 128)))
+    step = a(contrast_stretch(x, 100, 50, 100, 200))
+    np.testing.assert_allclose(step[0, :100], x[0, :100] * 0.5, atol=1e-5)
+    np.testing.assert_allclose(step[0, 100:], 200 + (x[0, 100:] - 100) * 55 / 155, atol=1e-4)
+    # r1 = 0 and r2 = 255: only the middle segment; all three equal: everything -> last segment
+    np.testing.assert_allclose(a(contrast_stretch(x, 0, 30, 255, 200)), 30 + x * 170 / 255, atol=1e-4)
+    np.testing.assert_allclose(a(contrast_stretch(x, 0, 0, 0, 0)), x, atol=1e-5)
+    np.testing.assert_allclose(a(contrast_stretch(x, 255, 255, 255, 255)), x, atol=1e-4)
+    end = a(contrast_stretch(x, 255, 100, 255, 100))
+    np.testing.assert_allclose(end[0, :255], x[0, :255] * 100 / 255, atol=1e-4)
+    assert end[0, 255] == 100
+    for result in (end, step, a(contrast_stretch(x, 0, 0, 0, 0))):
+        assert np.all(np.isfinite(result))
+
+
+def test_stretch_edges():
+    constant = a(contrast_stretch(np.full((2, 2), 77.0), 50, 10, 200, 250))
+    np.testing.assert_allclose(constant, np.full((2, 2), 10 + 27 * 240 / 150), rtol=1e-6)
+    x = np.array([[-10.0, 1e30, np.nan, np.inf]], np.float32)
+    result, messages = warned(contrast_stretch, x, 50, 10, 200, 250)
+    assert a(result).tolist() == [[0.0, 255.0, 0.0, 255.0]] and "2 non-finite" in messages[0]
+    assert a(contrast_stretch(np.array([[7]], np.uint8), 10, 20, 30, 40)).tolist() == [[14.0]]
+
+
+@pytest.mark.parametrize("args, name", [((200, 0, 100, 255), "r1"), ((-1, 0, 100, 255), "r1"),
+                                        ((0, 0, 300, 255), "r2"), ((10, 256, 100, 255), "s1"),
+                                        ((10, 0, 100, -3), "s2"), ((10, np.nan, 100, 3), "s1")])
+def test_stretch_rejects_bad_breakpoints(args, name):
+    with pytest.raises(ValueError, match=name):
+        contrast_stretch(GREY8, *args)
+
+
+# ------------------------------------------------------------------------------------------ quantize
+
+@pytest.mark.parametrize("levels", [2, 3, 4, 7, 16, 255, 256])
+def test_quantize_definition(levels):
+    x = np.arange(256, dtype=np.float64)
+    expected = np.minimum(np.floor(x * levels / 255), levels - 1) * 255 / (levels - 1)
+    np.testing.assert_allclose(a(quantize(x.reshape(16, 16), levels)).ravel(), expected, rtol=1e-6)
+    np.testing.assert_array_equal(a(quantize(x.astype(np.uint8).reshape(16, 16), levels)),
+                                  a(quantize(x.reshape(16, 16), levels)))
+    assert len(np.unique(a(quantize(x.reshape(16, 16), levels)))) == levels
+
+
+def test_quantize_edges():
+    x = np.arange(256, dtype=np.float32).reshape(16, 16)
+    np.testing.assert_array_equal(a(quantize(x, 256)), x)  # 256 levels on 8-bit: identity
+    assert a(quantize(np.array([[0, 127, 128, 255]]), 2)).tolist() == [[0, 0, 255, 255]]
+    assert np.unique(a(quantize(np.full((3, 3), 100.0), 4))).tolist() == [85.0]
+    result, messages = warned(quantize, np.array([[np.nan, np.inf, -4, 1e30]]), 4)
+    assert a(result).tolist() == [[0, 255, 0, 255]] and "2 non-finite" in messages[0]
+    np.testing.assert_allclose(a(quantize(np.array([[0.2, 0.6, 1.0]]), 2, max_value=1.0)), [[0, 1, 1]])
+
+
+@pytest.mark.parametrize("levels, error", [(1, ValueError), (0, ValueError), (2.5, TypeError),
+                                           (True, TypeError), ("4", TypeError)])
+def test_quantize_rejects_bad_levels(levels, error):
+    with pytest.raises(error, match="levels"):
+        quantize(GREY8, levels)
+
+
+# ------------------------------------------------------------------------------------------ lut
+
+def test_lut_matches_opencv():
+    table = RNG.integers(0, 256, 256).astype(np.uint8)
+    for image in (GREY8, GREY8_PACKED, RGB8):
+        np.testing.assert_array_equal(a(lut(image, table)), cv2.LUT(image, table).astype(np.float32))
+    per_channel = RNG.integers(0, 256, (256, 3)).astype(np.uint8)
+    np.testing.assert_array_equal(a(lut(RGB8, per_channel)),
+                                  cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)).astype(np.float32))
+    np.testing.assert_array_equal(a(lut(RGB8.astype(np.float32), per_channel)),
+                                  cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)).astype(np.float32))
+
+
+def test_lut_float_input_rounds_and_clips():
+    table = np.arange(256, dtype=np.float32) * 2
+    x = np.array([[0.4, 0.5, 1.5, 2.6, -3, 300, 254.5]], np.float32)
+    assert a(lut(x, table)).tolist() == [[0, 0, 4, 6, 0, 510, 508]]
+    result, messages = warned(lut, np.array([[np.nan, np.inf]]), table)
+    assert a(result).tolist() == [[0, 510]] and "2 non-finite" in messages[0]
+
+
+def test_lut_rejects_bad_tables():
+    with pytest.raises(ValueError, match="table"):
+        lut(GREY8, np.arange(255))
+    with pytest.raises(ValueError, match="table"):
+        lut(GREY8, np.zeros((256, 3)))  # per-channel table on a grey image
+    with pytest.raises(ValueError, match="table"):
+        lut(GREY8, np.full(256, np.nan))
+    with pytest.raises(TypeError, match="table"):
+        lut(GREY8, ["a"] * 256)
+
+
+# ------------------------------------------------------------------------------------------ equalisation
+
+@pytest.mark.parametrize("image", [GREY8, GREY8_PACKED, np.array([[3]], np.uint8), np.zeros((5, 7), np.uint8)],
+                         ids=["odd", "packed", "one-pixel", "black"])
+def test_equalize_matches_spec_uint8(image):
+    expected = spec_equalize(image, 256)
+    np.testing.assert_array_equal(a(equalize_histogram(image)), expected)
+    np.testing.assert_array_equal(a(equalize_histogram(image.astype(np.float32))), expected)
+
+
+def test_equalize_levels_and_float_binning():
+    x = RNG.random((21, 19), dtype=np.float32) * 255
+    for levels in (2, 16, 256, 1000):
+        bins = np.clip(np.round(x * (levels - 1) / 255.0), 0, levels - 1).astype(np.int64)
+        expected = spec_equalize(bins, levels) * 255 / (levels - 1)
+        np.testing.assert_allclose(a(equalize_histogram(x, levels)), expected, rtol=1e-6)
+
+
+def test_equalize_properties():
+    flat = np.arange(256, dtype=np.uint8).reshape(16, 16)   # every level once: already flat
+    np.testing.assert_array_equal(a(equalize_histogram(flat)), flat)
+    assert np.unique(a(equalize_histogram(np.full((6, 6), 90.0)))).tolist() == [255.0]  # constant -> white
+    assert a(equalize_histogram(np.full((4, 4), 255, np.uint8))).max() == 255
+    # the result's cumulative distribution is the uniform one: P(out <= F) = (F + 1) / L to rounding
+    skewed = (RNG.random((64, 64)) ** 3 * 255).astype(np.uint8)
+    out = a(equalize_histogram(skewed)).ravel()
+    levels = np.unique(out)
+    cdf = np.searchsorted(np.sort(out), levels, side="right") / out.size
+    positive = levels > 0
+    assert np.all(np.abs(cdf[positive] - (levels[positive] + 1) / 256) <= 0.5 / 256 + 1e-9)
+    assert len(levels) > 100
+    # OpenCV's variant (cdf - cdf_min) / (N - cdf_min) differs by at most a couple of levels
+    assert np.abs(a(equalize_histogram(GREY8)) - cv2.equalizeHist(GREY8)).max() <= 2
+
+
+def test_equalize_colour_through_hsv_v():
+    image = RGB8.astype(np.float32)
+    hsv = cv2.cvtColor(image / 255.0, cv2.COLOR_RGB2HSV)
+    v = np.round(hsv[..., 2] * 255).astype(np.int64)
+    hsv[..., 2] = spec_equalize(v, 256) / 255.0
+    expected = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB) * 255
+    ours = a(equalize_histogram(RGB8))
+    np.testing.assert_allclose(ours, expected, atol=2e-3)
+    np.testing.assert_allclose(a(equalize_histogram(image)), ours)
+    ours_hsv = cv2.cvtColor(ours / 255, cv2.COLOR_RGB2HSV)
+    orig_hsv = cv2.cvtColor(image / 255, cv2.COLOR_RGB2HSV)
+    keep = (ours_hsv[..., 2] > 0.05) & (orig_hsv[..., 1] > 0.05)
+    np.testing.assert_allclose(ours_hsv[..., 1][keep], orig_hsv[..., 1][keep], atol=1e-4)  # S kept
+
+
+def test_equalize_non_finite_and_errors():
+    x = np.array([[np.nan, np.inf, 10, 20]], np.float32)
+    result, messages = warned(equalize_histogram, x)
+    assert a(result).tolist() == [[spec_equalize(np.array([0, 255, 10, 20]), 256)[i] for i in range(4)]]
+    assert "2 non-finite" in messages[0]
+    with pytest.raises(ValueError, match="levels"):
+        equalize_histogram(GREY8, 1)
+    with pytest.raises(ValueError, match="levels"):
+        equalize_histogram(GREY8, 70000)
+    with pytest.raises(ValueError, match="channels"):
+        equalize_histogram(np.zeros((4, 4, 2)))
+    with pytest.raises(ValueError, match="channels"):
+        equalize_histogram(np.zeros((4, 4, 2), np.uint8))
+
+
+def test_histogram_matches_bincount():
+    for image in (GREY8, GREY8_PACKED, RGB8):
+        np.testing.assert_array_equal(histogram(image), np.bincount(image.ravel(), minlength=256))
+        np.testing.assert_array_equal(histogram(image.astype(np.float32)), np.bincount(image.ravel(), minlength=256))
+    assert histogram(np.array([[0.0, 127.0, 128.0, 255.0]]), 2).tolist() == [2, 2]
+
+
+# ------------------------------------------------------------------------------------------ tone mapping
+
+def _srgb255(x):
+    return colour.cctf_encoding(np.clip(x, 0, 1), function="sRGB") * 255
+
+
+def _reference(x, operator, white=None):
+    """Numpy versions of the operator formulas written from their sources (see imaging.tone)."""
+    x = np.clip(np.asarray(x, np.float64), 0, None)
+    lum = x @ np.array([0.2126, 0.7152, 0.0722]) if x.ndim == 3 else x
+    if operator == "clip":
+        return _srgb255(x)
+    if operator in ("reinhard", "log"):
+        w = white if white is not None else lum.max()
+        mapped = lum * (1 + lum / w**2) / (1 + lum) if operator == "reinhard" else np.log1p(lum) / np.log1p(w)
+        ratio = np.divide(mapped, lum, out=np.zeros_like(lum), where=lum > 0)
+        return _srgb255(x * (ratio[..., None] if x.ndim == 3 else ratio))
+    if operator == "reinhard_extended":
+        w = white if white is not None else x.max()
+        return _srgb255(x * (1 + x / w**2) / (1 + x))
+    if operator == "hable":
+        A, B, C, D, E, F, W = (HABLE_CONSTANTS[k] for k in "ABCDEFW")
+
+        def f(v):
+            return (v * (A * v + C * B) + D * E) / (v * (A * v + B) + D * F) - E / F
+
+        return _srgb255(f(2.0 * x) / f(W))
+    k = ACES_CONSTANTS
+    return _srgb255(x * (k["a"] * x + k["b"]) / (x * (k["c"] * x + k["d"]) + k["e"]))
+
+
+HDR = (RNG.random((12, 10, 3)) ** 4 * 20).astype(np.float32)
+
+
+@pytest.mark.parametrize("operator", ["clip", "reinhard", "reinhard_extended", "hable", "aces", "log"])
+def test_tonemap_operators_match_reference(operator):
+    np.testing.assert_allclose(a(tonemap(HDR, operator)), _reference(HDR, operator), atol=5e-3)
+    grey = HDR[..., 1]
+    np.testing.assert_allclose(a(tonemap(grey, operator)), _reference(grey, operator), atol=5e-3)
+    ramp = np.geomspace(1e-4, 1e4, 200, dtype=np.float32).reshape(10, 20)
+    mapped = a(tonemap(ramp, operator)).ravel()
+    assert np.all(np.diff(mapped) >= -1e-4)          # monotonic
+    assert mapped[0] < 5 and mapped.min() >= 0 and mapped.max() <= 255
+    assert a(tonemap(np.zeros((3, 3, 3)), operator)).max() == 0   # all black stays black
+    assert a(tonemap(np.array([[np.float32(1e30)]]), operator)).item() > 200  # huge: no overflow
+
+
+def test_tonemap_white_and_exposure():
+    for operator in ("reinhard", "reinhard_extended", "log"):
+        np.testing.assert_allclose(a(tonemap(HDR, operator, white=4.0)), _reference(HDR, operator, 4.0), atol=5e-3)
+    np.testing.assert_allclose(a(tonemap(HDR, "aces", exposure=-1.5)), _reference(HDR * 2**-1.5, "aces"), atol=5e-3)
+    np.testing.assert_allclose(a(tonemap(HDR, "reinhard", white=np.inf)), _srgb255(
+        HDR * (1 / (1 + (HDR @ np.array([0.2126, 0.7152, 0.0722]))))[..., None]), atol=5e-3)
+    # the default white point maps the brightest luminance to 1 (Reinhard's choice)
+    assert a(tonemap(np.array([[0.5, 2.0, 8.0]]), "reinhard")).max() == pytest.approx(255.0, abs=1e-3)
+    # clip agrees with the PNG preview of imaging.io (sRGB through colour-science, then rounding)
+    np.testing.assert_array_equal(np.round(a(tonemap(HDR, "clip"))).astype(np.uint8), to_8bit(HDR))
+
+
+def test_tonemap_non_finite_policy():
+    x = HDR.copy()
+    x[0, 0, 0], x[1, 1, 1], x[2, 2, 2] = np.nan, np.inf, -np.inf
+    result, messages = warned(tonemap, x, "reinhard")
+    result = a(result)
+    assert result[0, 0, 0] == 0 and result[1, 1, 1] == 255 and result[2, 2, 2] == 0
+    assert np.all(np.isfinite(result)) and len(messages) == 1 and "3 non-finite" in messages[0]
+    # non-finite values do not move the default white point of the other pixels
+    clean = x.copy()
+    clean[0, 0, 0] = clean[1, 1, 1] = clean[2, 2, 2] = 0
+    mask = np.ones(x.shape, bool)
+    mask[[0, 1, 2], [0, 1, 2]] = False
+    np.testing.assert_allclose(result[mask], a(tonemap(clean, "reinhard"))[mask], atol=1e-4)
+    assert a(tonemap(np.array([[-1.0, -1e30]]), "hable")).tolist() == [[0.0, 0.0]]
+
+
+@pytest.mark.parametrize("kwargs, name", [({"operator": "filmic"}, "operator"), ({"operator": 3}, "operator"),
+                                          ({"operator": "aces", "white": 2}, "white"),
+                                          ({"operator": "reinhard", "white": 0}, "white"),
+                                          ({"operator": "reinhard", "white": np.nan}, "white"),
+                                          ({"operator": "clip", "exposure": 1000}, "exposure"),
+                                          ({"operator": "clip", "exposure": np.nan}, "exposure")])
+def test_tonemap_rejects_bad_arguments(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        tonemap(HDR, **kwargs)
+
+
+def test_tonemap_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="channels"):
+        tonemap(np.zeros((4, 4, 2)), "clip")
+    with pytest.raises(ValueError, match="image"):
+        tonemap(np.zeros((4,)), "clip")
+
+
+def test_dynamic_range():
+    assert dynamic_range(np.array([[10, 200], [30, 40]])) == 190
+    assert dynamic_range(np.full((3, 3), 5.0)) == 0
+    assert dynamic_range(np.array([[np.nan, 1.0, np.inf, 4.0]])) == 3
+    with pytest.raises(ValueError, match="finite"):
+        dynamic_range(np.array([[np.nan]]))
