@@ -47,6 +47,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside the EXR")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML); repeatable")
+    dist = parser.add_argument_group("tiles and Dask distributed (pointillist.distributed)")
+    dist.add_argument("--tiles", type=tiles_arg, metavar="RxC",
+                      help="split the film into R x C crop-window tiles, one task each, tile i seeded "
+                           "(seed*R*C + i) mod 2^32 (default: one untiled render)")
+    dist.add_argument("--workers", type=positive_int, metavar="N",
+                      help="render the tiles on a local Dask cluster of N worker processes")
+    dist.add_argument("--scheduler", metavar="ADDRESS",
+                      help="render the tiles on an existing Dask cluster (e.g. tcp://host:8786)")
+    dist.add_argument("--cache", metavar="DIR",
+                      help="keep finished tiles in DIR; a rerun renders only the missing ones")
+
+
+def tiles_arg(text: str) -> tuple[int, int]:
+    """argparse type: ``RxC`` tiles (rows x columns)."""
+    from pointillist.distributed import parse_tiles
+
+    try:
+        return parse_tiles(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix("tiles: ")) from None
 
 
 def output_path(scene: str, output: str | None) -> Path:
@@ -68,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
     out = output_path(args.scene, args.output)
     if not out.parent.is_dir():
         raise UsageError(f"--output: folder {out.parent} does not exist")
+    if args.tiles or args.workers or args.scheduler or args.cache:
+        from pointillist.distributed import render_command
+
+        return render_command(args, params, out)
 
     import pointillist
     from pointillist.scene import load_scene, scene_info, timed_render
