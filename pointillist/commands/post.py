@@ -24,8 +24,8 @@ HELP = "tone-map, filter and dither a render (steps run in order)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("input", help="input image: EXR render, or PNG/JPEG/TIFF")
-    parser.add_argument("-o", "--output", required=True, help="output .png or .exr")
+    parser.add_argument("input", nargs="?", help="input image: EXR render, or PNG/JPEG/TIFF")
+    parser.add_argument("-o", "--output", help="output .png or .exr (required unless --list-steps)")
     parser.add_argument("--steps", default="", metavar="STEPS",
                         help='steps separated by ";", e.g. "tonemap:reinhard,exposure=1;gamma:2.2"')
     parser.add_argument("--step", action="append", default=[], metavar="STEP",
@@ -49,6 +49,21 @@ def _stats(image) -> str:
     return f"min {finite.min():.4g}, mean {finite.mean():.4g}, max {finite.max():.4g}"
 
 
+def _run_step(spec, image, kwargs):
+    """Run one step; bad arguments become a one-line UsageError, warnings one line on stderr."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result = spec.function(image, **kwargs)
+        except (TypeError, ValueError) as error:
+            raise UsageError(f"--steps: {spec.name}: {error}") from None
+    for warning in caught:
+        print(f"post: warning: {warning.message}", file=sys.stderr)
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     from pointillist.steps import parse_steps, steps
 
@@ -57,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
             params = f" ({', '.join(spec.params)})" if spec.params else ""
             print(f"{name}{params}: {spec.help}")
         return 0
+    if args.input is None:
+        raise UsageError("input: expected an input image (EXR, PNG, JPEG or TIFF)")
+    if args.output is None:
+        raise UsageError("--output: expected an output .png or .exr file name")
     text = ";".join([args.steps, *args.step] + ([f"dither:{args.dither.replace(':', ',', 1)}"] if args.dither else []))
     pipeline = parse_steps(text)
     source, out = Path(args.input), Path(args.output)
@@ -85,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     done = []
     for spec, kwargs in pipeline:
         if linear and not spec.linear:
-            current = known["tonemap"].function(current, operator="clip")
+            current = _run_step(known["tonemap"], current, {"operator": "clip"})
             linear = False
             done.append("tonemap:clip")
             print("post: input is linear light; applied tonemap:clip first", file=sys.stderr)
@@ -93,10 +112,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
                              "but the image is already display-referred")
         previous = current
-        try:
-            current = spec.function(current, **kwargs)
-        except TypeError as error:
-            raise UsageError(f"--steps: {spec.name}: {error}") from None
+        current = _run_step(spec, current, kwargs)
         linear = False if spec.linear else linear
         done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
         if args.report:
@@ -133,9 +149,23 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
     for ax, data, label in ((axes[0], before, "before"), (axes[1], after, "after")):
         values = np.asarray(data, dtype=np.float64)
-        values = values[np.isfinite(values)]
-        ax.hist(values.ravel(), bins=256, color="0.3")
-        ax.set_title(label + (" (linear)" if label == "before" and linear_before else ""))
+        values = values.reshape(values.shape[0], values.shape[1], -1)
+        finite = values[np.isfinite(values)]
+        linear = label == "before" and linear_before
+        # Linear renders: a few very bright pixels would squash the plot; show up to the 99.9th percentile.
+        high = float(np.percentile(finite, 99.9)) if linear and finite.size else None
+        low = float(finite.min()) if finite.size else 0.0
+        span = (low, high if high is not None and high > low else low + 1.0) if linear else (
+            (min(low, 0.0), max(float(finite.max()) if finite.size else 255.0, 255.0)))
+        colours = ("tab:red", "tab:green", "tab:blue") if values.shape[2] == 3 else ("0.3",) * values.shape[2]
+        names = ("R", "G", "B") if values.shape[2] == 3 else ("grey",) * values.shape[2]
+        for c in range(values.shape[2]):
+            channel = values[..., c]
+            channel = channel[np.isfinite(channel)]
+            ax.hist(channel, bins=256, range=span, histtype="step", color=colours[c], label=names[c])
+        if values.shape[2] == 3:
+            ax.legend(fontsize=7)
+        ax.set_title(label + (" (linear, to the 99.9th percentile)" if linear else " (0..255)"))
         ax.set_xlabel("value")
         ax.set_ylabel("pixels")
     fig.suptitle(title, fontsize=9)

@@ -1,0 +1,142 @@
+"""``pointillist post``: steps in order, EXR in / PNG or EXR out, --plot, one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from imaging import tone
+from imaging.io import read_exr, to_8bit, write_exr, write_png
+from pointillist.cli import main
+
+RNG = np.random.default_rng(3)
+HDR = (RNG.random((12, 16, 3)) ** 3 * 6).astype(np.float32)
+
+
+@pytest.fixture
+def exr(tmp_path):
+    path = tmp_path / "render.exr"
+    write_exr(path, HDR, {"spp": 4})
+    return path
+
+
+def run(capsys, *args):
+    status = main(["post", *map(str, args)])
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def png(path):
+    with Image.open(path) as image:
+        return np.asarray(image)
+
+
+def test_exr_in_png_out_steps_in_order(exr, tmp_path, capsys):
+    out = tmp_path / "out.png"
+    status, stdout, err = run(capsys, exr, "-o", out, "--steps", "tonemap:reinhard,exposure=1;gamma:2.2",
+                              "--step", "quantize:8")
+    assert status == 0, err
+    expected = tone.quantize(tone.gamma(tone.tonemap(HDR, "reinhard", 1.0), 2.2), 8)
+    np.testing.assert_array_equal(png(out), to_8bit(expected, srgb=False, max_value=255))
+    assert "wrote" in stdout
+    # the other order gives the other composition (and a different image)
+    other = tmp_path / "other.png"
+    assert run(capsys, exr, "-o", other, "--steps", "tonemap:reinhard,exposure=1;quantize:8;gamma:2.2")[0] == 0
+    expected_other = tone.gamma(tone.quantize(tone.tonemap(HDR, "reinhard", 1.0), 8), 2.2)
+    np.testing.assert_array_equal(png(other), to_8bit(expected_other, srgb=False, max_value=255))
+    assert not np.array_equal(png(other), png(out))
+
+
+def test_display_step_on_exr_applies_tonemap_clip_first(exr, tmp_path, capsys):
+    out = tmp_path / "eq.exr"
+    status, _, err = run(capsys, exr, "-o", out, "--steps", "equalize")
+    assert status == 0 and "tonemap:clip" in err
+    image, metadata, _ = read_exr(out)
+    np.testing.assert_array_equal(image, np.asarray(tone.equalize_histogram(tone.tonemap(HDR, "clip"))))
+    assert metadata["post_steps"] == "tonemap:clip;equalize"
+
+
+def test_png_input_and_plot(tmp_path, capsys):
+    source = tmp_path / "in.png"
+    grey = RNG.integers(0, 256, (20, 30)).astype(np.float32)
+    write_png(source, grey, srgb=False, max_value=255)
+    out = tmp_path / "stretched.png"
+    status, stdout, err = run(capsys, source, "-o", out, "--steps", "stretch:50,20,200,235;equalize:16", "--plot")
+    assert status == 0, err
+    expected = tone.equalize_histogram(tone.contrast_stretch(grey, 50, 20, 200, 235), 16)
+    np.testing.assert_array_equal(png(out), to_8bit(expected, srgb=False, max_value=255))
+    plot = tmp_path / "stretched_histogram.png"
+    assert plot.is_file() and str(plot) in stdout
+    with Image.open(plot) as image:
+        assert image.format == "PNG" and image.size[0] > 300
+
+
+def test_non_finite_input_warns_on_one_line(tmp_path, capsys):
+    bad = HDR.copy()
+    bad[0, 0, 0], bad[1, 1, 1] = np.nan, np.inf
+    source = tmp_path / "bad.exr"
+    write_exr(source, bad)
+    status, _, err = run(capsys, source, "-o", tmp_path / "bad.png", "--steps", "tonemap:aces")
+    assert status == 0
+    warning = [line for line in err.splitlines() if "non-finite" in line]
+    assert len(warning) == 1 and "2 non-finite" in warning[0]
+
+
+def test_list_steps_needs_no_files(capsys):
+    status, stdout, _ = run(capsys, "--list-steps")
+    assert status == 0
+    for name in ("tonemap", "gamma", "stretch", "equalize", "quantize", "hsv", "grey", "lut"):
+        assert f"\n{name}" in "\n" + stdout
+
+
+def test_lut_step_reads_a_table(tmp_path, capsys):
+    table = tmp_path / "invert.txt"
+    np.savetxt(table, 255 - np.arange(256))
+    source = tmp_path / "g.png"
+    grey = RNG.integers(0, 256, (5, 6)).astype(np.float32)
+    write_png(source, grey, srgb=False, max_value=255)
+    out = tmp_path / "inv.png"
+    assert run(capsys, source, "-o", out, "--steps", f"lut:{table}")[0] == 0
+    np.testing.assert_array_equal(png(out), 255 - grey.astype(np.uint8))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--steps", "gamma:0"], "gamma"),
+    (["--steps", "nosuchstep"], "unknown step"),
+    (["--steps", "tonemap:filmic"], "operator"),
+    (["--steps", "tonemap:hable,foo=1"], "foo"),
+    (["--steps", "stretch:200,0,100,255"], "r1"),
+    (["--steps", "quantize:1"], "levels"),
+    (["--steps", "quantize"], "levels"),
+    (["--steps", "hsv:30"], "RGB"),
+    (["--steps", "lut:/no/such/table.txt"], "file"),
+    ([], "no step"),
+])
+def test_bad_input_is_one_line_and_status_2(exr, tmp_path, capsys, args, message):
+    source = exr
+    if message == "RGB":  # hsv needs colour: give it a grey image
+        source = tmp_path / "grey.exr"
+        write_exr(source, HDR[..., 0])
+    status, _, err = run(capsys, source, "-o", tmp_path / "x.png", *args)
+    lines = [line for line in err.splitlines() if line.startswith("pointillist post: error")]
+    assert status == 2 and len(lines) == 1 and message in lines[0], err
+
+
+def test_bad_files_and_subprocess_exit_status(exr, tmp_path, cli):
+    result = cli("post", tmp_path / "missing.exr", "-o", tmp_path / "x.png", "--steps", "gamma:2")
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "no such file" in result.stderr and "Traceback" not in result.stderr
+    result = cli("post", exr, "-o", tmp_path / "x.jpg", "--steps", "gamma:2")
+    assert result.returncode == 2 and "--output" in result.stderr
+    result = cli("post", exr, "-o", exr, "--steps", "tonemap")
+    assert result.returncode == 2 and "overwrite" in result.stderr
+    result = cli("post", tmp_path / "x.png", "-o", tmp_path / "y.png", "--steps", "gamma:2")
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_tonemap_on_display_input_is_refused(tmp_path, capsys):
+    source = tmp_path / "d.png"
+    write_png(source, np.zeros((3, 3)), srgb=False, max_value=255)
+    status, _, err = run(capsys, source, "-o", tmp_path / "t.png", "--steps", "tonemap:reinhard")
+    assert status == 2 and "linear" in err
