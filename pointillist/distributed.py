@@ -95,6 +95,8 @@ __all__ = [
     "assemble_tiles",
     "render_tiled",
     "render_command",
+    "compare_task",
+    "prerender_sweep",
 ]
 
 #: How often a task that raises is re-run (``retries=`` of ``Client.submit``).
@@ -723,6 +725,51 @@ def render_tiled(scene: str | os.PathLike, params: dict[str, str] | None = None,
     image = assemble_tiles(grid, [r.image for r in results], x=ox, y=oy, width=width, height=height)
     return TiledRender(image=image, tiles=grid, results=results, wall=time.perf_counter() - start,
                        cached=stats["cached"])
+
+
+# --------------------------------------------------------------------------- `pointillist compare` sweeps
+def compare_task(call: tuple) -> Any:
+    """Run :func:`pointillist.compare.render_one` ``(*call)`` in this process (a worker).
+
+    ``render_one`` renders one (sampler, value, seed), times it here and writes
+    its EXR and JSON record into the comparison folder (its on-disk cache).
+    """
+    _setup_process()
+    from pointillist.compare import render_one
+
+    return render_one(*call)
+
+
+def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params: dict[str, str] | None,
+                    out_dir: str | os.PathLike, reference_spp: int | None = None,
+                    retries: int = DEFAULT_RETRIES, progress: bool = True) -> int:
+    """Render a comparison's missing renders (and its reference) as tasks on ``client``.
+
+    Every :class:`pointillist.compare.Task` (and the reference, when
+    ``reference_spp`` is given) whose EXR and JSON record are not yet in
+    ``out_dir`` becomes one :func:`compare_task`; the workers write them where a
+    serial ``compare`` would, so the serial scoring pass that follows finds
+    them all finished. ``out_dir`` and the scene must be reachable by the
+    workers under the same (absolute) paths. Returns how many were rendered.
+    """
+    from pointillist.compare import REFERENCE_SAMPLER, REFERENCE_SEED, Task, scene_key, task_paths
+
+    scene = str(Path(scene).resolve())
+    out_dir = str(Path(out_dir).resolve())
+    params = dict(params or {})
+    key = scene_key(scene, params)
+    calls = []
+    if reference_spp:
+        calls.append((scene, REFERENCE_SAMPLER, int(reference_spp), REFERENCE_SEED, params,
+                      str(Path(out_dir) / "reference"), key))
+    calls += [(scene, t.method, t.value, int(t.seed), params, out_dir, key) for t in tasks]
+    todo = [c for c in calls
+            if not all(p.is_file() for p in task_paths(c[5], Task(c[1], c[2], c[3]), key))]
+    keys = [hashlib.sha256(json.dumps(c, sort_keys=True, default=_json_default).encode()).hexdigest()
+            for c in todo]
+    run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
+              desc="compare on cluster")
+    return len(todo)
 
 
 # --------------------------------------------------------------------------- `pointillist render --tiles`

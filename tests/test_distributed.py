@@ -376,3 +376,34 @@ def test_render_cli_bad_distributed_options(cli, tmp_path, argv, message):
     proc = cli("render", DEFAULT, "-o", tmp_path / "x.exr", "--spp", "1", "-D", "res=20", *argv)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+
+
+def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
+    """`compare --workers 2` renders each (sampler, spp, seed) as a task: same renders and errors as serial."""
+    import csv
+
+    from imaging.io import read_exr
+
+    common = ["compare", DEFAULT, "-D", "res=12", "--spp", "1,4", "--samplers", "independent,stratified",
+              "--seeds", "2", "--reference-spp", "32", "--no-progress"]
+    serial = cli(*common, "--out", tmp_path / "serial")
+    assert serial.returncode == 0, serial.stderr
+    remote = cli(*common, "--out", tmp_path / "remote", "--workers", "2")
+    assert remote.returncode == 0, remote.stderr
+    assert "9 renders done on the cluster" in remote.stdout  # 8 sweep renders + the reference
+
+    def rows(folder):
+        with open(folder / "results.csv") as handle:
+            return {(r["method"], r["value"], r["seed"]): r for r in csv.DictReader(handle)}
+
+    a, b = rows(tmp_path / "serial"), rows(tmp_path / "remote")
+    assert a.keys() == b.keys() and len(a) == 8
+    for key in a:
+        for column in ("rmse", "relmse", "flip"):
+            assert float(a[key][column]) == pytest.approx(float(b[key][column]), rel=1e-4, abs=1e-6)
+        assert float(b[key]["total"]) > 0  # timed (on the worker)
+        np.testing.assert_allclose(read_exr(tmp_path / "serial" / a[key]["exr"]).image,
+                                   read_exr(tmp_path / "remote" / b[key]["exr"]).image, rtol=1e-5, atol=1e-6)
+    # Run again: everything is cached, nothing is sent to the cluster.
+    again = cli(*common, "--out", tmp_path / "remote", "--workers", "2")
+    assert again.returncode == 0 and "0 renders done on the cluster" in again.stdout, again.stderr

@@ -50,6 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     reference.add_argument("--reference", metavar="FILE.exr", help="use this EXR as the reference")
     parser.add_argument("--out", metavar="DIR", help="output folder (default out/compare/<scene name>)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    cluster = parser.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=positive_int, metavar="N",
+                         help="render on a local Dask cluster of N worker processes, one task per render, "
+                              "timed on the worker (default: serial, in process)")
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help="render on an existing Dask cluster (e.g. tcp://host:8786); the scene and "
+                              "--out must be on a file system the workers share")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML); repeatable")
 
@@ -76,6 +83,15 @@ def run(args: argparse.Namespace) -> int:
         if not values:
             raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
         tasks += [Task(method.name, v, seed) for v in values for seed in range(args.seeds)]
+
+    if args.workers or args.scheduler:
+        from pointillist.distributed import open_client, prerender_sweep
+
+        with open_client(args.workers, args.scheduler) as client:
+            new = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
+                                  reference_spp=None if args.reference else args.reference_spp,
+                                  progress=not args.no_progress)
+        print(f"{new} renders done on the cluster", flush=True)
 
     if args.reference:
         reference = Path(args.reference)
