@@ -131,3 +131,35 @@ def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *
     write_exr(out, pixels[..., :base], metadata, layers=layers, inputs=[scene_path])
     if png:
         write_png(out.with_suffix(".png"), pixels[..., :min(base, 3)], inputs=[scene_path])
+        if SAMPLE_COUNT_LAYER in layers:
+            write_sample_heatmap(out.with_suffix(f".{SAMPLE_COUNT_LAYER}.png"), layers[SAMPLE_COUNT_LAYER],
+                                 inputs=[scene_path])
+
+
+#: The EXR layer of a per-pixel sample count (written by the ``adaptive`` integrator).
+SAMPLE_COUNT_LAYER = "sample_count"
+
+
+def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
+    """Write a per-pixel sample count as a heat map PNG (viridis, with a colour bar)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from imaging.io import _atomic_write, check_output_path
+
+    path = check_output_path(path, inputs, name="sample-count heat map")
+    counts = np.asarray(counts, dtype=np.float64)
+    height, width = counts.shape
+    scale = 6.0 / max(height, width)
+    fig, ax = plt.subplots(figsize=(max(width * scale, 2.5) + 1.2, max(height * scale, 2.0)), dpi=110)
+    shown = ax.imshow(counts, cmap="viridis", interpolation="nearest",
+                      vmin=float(counts.min()), vmax=max(float(counts.max()), float(counts.min()) + 1))
+    fig.colorbar(shown, ax=ax, label="samples per pixel")
+    ax.set_title(f"samples per pixel: mean {counts.mean():.1f}, max {counts.max():.0f}", fontsize=9)
+    ax.set_axis_off()
+    fig.tight_layout()
+    _atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
