@@ -615,6 +615,30 @@ def _ordered_values(values: Float, thresholds: Float, cells: int, levels: int) -
     return (base + up) * full / gaps
 
 
+def _divmod(a: UInt32, divisor: int) -> tuple[UInt32, UInt32]:
+    """``a // divisor, a % divisor`` for a per-call divisor without vector integer division.
+
+    LLVM has no SIMD integer division (it runs lane by lane); a float64 reciprocal (opaque, so the
+    kernel does not depend on the size) and one correction step are exact for ``a < 2^32``.
+    """
+    if divisor == 1:
+        return a, dr.zeros(UInt32, dr.width(a))
+    d = dr.opaque(UInt32, divisor)
+    q = UInt32(Float64(a) * dr.opaque(Float64, 1.0 / divisor))
+    r = Int32(a) - Int32(q * d)
+    q = dr.select(r < 0, q - 1, dr.select(r >= Int32(d), q + 1, q))
+    return q, a - q * d
+
+
+def _template_thresholds(template: np.ndarray, y: UInt32, x: UInt32) -> Float:
+    n = template.shape[0]
+    table = Float(template.ravel().astype(np.float32))
+    if n & (n - 1) == 0:  # powers of two (Bayer, TEMPLATE_4, blue noise): masks, no division
+        mask = dr.opaque(UInt32, n - 1)
+        return dr.gather(Float, table, ((y & mask) << dr.opaque(UInt32, n.bit_length() - 1)) | (x & mask))
+    return dr.gather(Float, table, _divmod(y, n)[1] * dr.opaque(UInt32, n) + _divmod(x, n)[1])
+
+
 def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf:
     """Ordered dithering (SPEC): one p per pixel, compared with the template entry at that pixel.
 
@@ -655,12 +679,9 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     shape = tuple(tensor.shape)
     channels = shape[2] if len(shape) == 3 else 1
     n = template.shape[0]
-    index = dr.arange(UInt32, dr.width(values))
-    pixel = index // dr.opaque(UInt32, channels)
-    W = dr.opaque(UInt32, shape[1])
-    y, x = pixel // W, pixel % W
-    N = dr.opaque(UInt32, n)
-    thresholds = dr.gather(Float, Float(template.ravel().astype(np.float32)), (y % N) * N + x % N)
+    pixel = _divmod(dr.arange(UInt32, dr.width(values)), channels)[0]
+    y, x = _divmod(pixel, shape[1])
+    thresholds = _template_thresholds(template, y, x)
     return TensorXf(_ordered_values(values, thresholds, n * n, levels), shape)
 
 
@@ -691,20 +712,16 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     channels = shape[2] if len(shape) == 3 else 1
     n = template.shape[0]
     by, bx = -(-height // n), -(-width // n)
-    index = dr.arange(UInt32, dr.width(values))
     C = dr.opaque(UInt32, channels)
-    W = dr.opaque(UInt32, width)
-    N = dr.opaque(UInt32, n)
-    c = index % C
-    pixel = index // C
-    y, x = pixel // W, pixel % W
-    block = ((y // N) * dr.opaque(UInt32, bx) + x // N) * C + c
+    pixel, c = _divmod(dr.arange(UInt32, dr.width(values)), channels)
+    y, x = _divmod(pixel, width)
+    block = (_divmod(y, n)[0] * dr.opaque(UInt32, bx) + _divmod(x, n)[0]) * C + c
     sums = dr.zeros(Float64, by * bx * channels)
     counts = dr.zeros(Float64, by * bx * channels)
     dr.scatter_add(sums, Float64(values), block)
     dr.scatter_add(counts, Float64(1.0), block)
     mean = Float(dr.gather(Float64, sums, block) / dr.gather(Float64, counts, block))
-    thresholds = dr.gather(Float, Float(template.ravel().astype(np.float32)), (y % N) * N + x % N)
+    thresholds = _template_thresholds(template, y, x)
     return TensorXf(_ordered_values(mean, thresholds, n * n, levels), shape)
 
 
@@ -747,16 +764,12 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf:
     height, width = shape[0], shape[1]
     channels = shape[2] if len(shape) == 3 else 1
     out_shape = (height * n, width * n) + ((channels,) if len(shape) == 3 else ())
-    index = dr.arange(UInt32, height * n * width * n * channels)
     C = dr.opaque(UInt32, channels)
-    N = dr.opaque(UInt32, n)
-    OW = dr.opaque(UInt32, width * n)
-    c = index % C
-    pixel = index // C
-    oy, ox = pixel // OW, pixel % OW
-    source = ((oy // N) * dr.opaque(UInt32, width) + ox // N) * C + c
+    pixel, c = _divmod(dr.arange(UInt32, height * n * width * n * channels), channels)
+    oy, ox = _divmod(pixel, width * n)
+    source = (_divmod(oy, n)[0] * dr.opaque(UInt32, width) + _divmod(ox, n)[0]) * C + c
     intensity = dr.gather(Float, values, source)
-    thresholds = dr.gather(Float, Float(template.ravel().astype(np.float32)), (oy % N) * N + ox % N)
+    thresholds = _template_thresholds(template, oy, ox)
     return TensorXf(_ordered_values(intensity, thresholds, n * n, 2), out_shape)
 
 

@@ -467,3 +467,18 @@ def test_post_cli_dither_and_report(cli, tmp_path):
     assert np.array_equal(written.astype(np.float32), expected)
     bad = cli("post", source, "-o", tmp_path / "x.png", "--dither", "nope")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_divmod_helper_is_exact():
+    from drjit.llvm import UInt32
+
+    a = np.concatenate([np.arange(0, 50000), np.arange(2**32 - 50000, 2**32)]).astype(np.uint32)
+    for divisor in (1, 3, 7, 255, 2048, 2049, 65537, 12345679):
+        q, r = dither._divmod(UInt32(a), divisor)
+        assert np.array_equal(np.asarray(q), a // divisor) and np.array_equal(np.asarray(r), a % divisor)
+    # and the non-power-of-two template path of ordered dithering
+    image = np.random.default_rng(1).integers(0, 256, (11, 13)).astype(np.float32)
+    template = clustered_dot(3)
+    p = np.minimum(image.astype(np.int64) * 10 // 255, 9)
+    expected = np.where(p >= np.tile(template, (4, 5))[:11, :13], 255.0, 0.0)
+    assert np.array_equal(np.asarray(ordered(image, template)), expected)
