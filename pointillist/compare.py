@@ -107,8 +107,32 @@ for _name, _plugin in (("grid", "grid"), ("jitter", "jitter"), ("poisson", "pois
     register_method(Method(_name, _plugin))
 for _name in MITSUBA_SAMPLERS:
     register_method(Method(_name, _name))
-# Adaptive super-sampling (issue: adaptive integrator) registers itself here as
-# Method("adaptive", "adaptive", kind="integrator", parameter="threshold", values=(...)).
+
+
+def _configure_adaptive(root: ET.Element, value: float) -> None:
+    """Wrap the scene's ``<integrator>`` in ``<integrator type="adaptive">`` with
+    ``threshold`` = ``value`` (an adaptive integrator already there gets the threshold)."""
+    old = root.findall("integrator")
+    if old and old[0].get("type") == "adaptive":
+        adaptive = old[0]
+        for element in adaptive.findall("*[@name='threshold']"):
+            adaptive.remove(element)
+        adaptive.insert(0, _property("float", "threshold", float(value)))
+        return
+    position = list(root).index(old[0]) if old else 0
+    for element in old:
+        root.remove(element)
+    adaptive = ET.Element("integrator", {"type": "adaptive"})
+    adaptive.append(_property("float", "threshold", float(value)))
+    adaptive.append(old[0] if old else ET.Element("integrator", {"type": "path"}))
+    root.insert(position, adaptive)
+
+
+#: Adaptive super-sampling (plugins/integrators/adaptive.py) sweeps its threshold on
+#: the 0..255 display scale, around the scene's own integrator.
+ADAPTIVE_THRESHOLDS = (64.0, 32.0, 16.0, 8.0, 4.0)
+register_method(Method("adaptive", "adaptive", kind="integrator", parameter="threshold",
+                       values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive))
 
 
 def resolve_methods(names: str | Iterable[str]) -> list[Method]:

@@ -369,3 +369,18 @@ def test_aov_names_and_description(mi):
     integrator = mi.load_dict(_adaptive("path", threshold=5.0))
     assert integrator.aov_names() == ["sample_count"]
     assert "threshold=5" in integrator.to_string() and "criterion=range" in integrator.to_string()
+
+
+# -- pointillist compare ---------------------------------------------------------------------
+
+def test_compare_sweeps_adaptive_thresholds_around_the_scene_integrator(mi, tmp_path):
+    from pointillist.compare import METHODS, load_configured_scene, render_one
+
+    method = METHODS["adaptive"]
+    assert method.kind == "integrator" and method.parameter == "threshold" and len(method.values) >= 3
+    scene = load_configured_scene(ROOT / "scenes" / "edges.xml", method, 8.0, {"res": "12"})
+    integrator = scene.integrator()
+    assert integrator.threshold == 8.0 and "DirectIntegrator" in integrator.to_string()
+    record = render_one(str(ROOT / "scenes" / "edges.xml"), "adaptive", 8.0, 0, {"res": "12"}, str(tmp_path))
+    image, meta, layers = read_exr(tmp_path / "renders" / record.exr)
+    assert record.spp == pytest.approx(layers["sample_count"].mean()) and record.spp > 4
