@@ -43,6 +43,9 @@ class LambertBSDF(mi.BSDF):
         </bsdf>
     """
 
+    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
+    PLUGIN_NAME = "lambert"
+
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.m_reflectance = texture_property(props, "reflectance", 0.5)

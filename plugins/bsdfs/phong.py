@@ -76,6 +76,9 @@ class PhongBSDF(mi.BSDF):
         </bsdf>
     """
 
+    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
+    PLUGIN_NAME = "phong"
+
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.m_kd = texture_property(props, "diffuse_reflectance", 0.5)

@@ -150,6 +150,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         </integrator>
     """
 
+    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
+    PLUGIN_NAME = "whitted"
+
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         max_depth = props.get("max_depth", 5)
