@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -303,11 +304,45 @@ def _schedule(kernel: tuple[tuple[int, int, float], ...], serpentine: bool, widt
                 lanes=lanes, slots=lanes + depth, stride=stride)
 
 
+@lru_cache(maxsize=1)
+def _lanes() -> int:
+    """:func:`_packet_width`, verified once on this machine before it is trusted.
+
+    The parallel schedule is only exact when a band's lanes share one SIMD packet. The width is
+    read from CPU flags, not from Dr.Jit, so it is checked: a small random image is diffused with
+    the guessed width and with one lane (always exact); on disagreement the width is halved
+    until they agree, with a warning. Costs a few milliseconds once per process.
+    """
+    lanes = _packet_width()
+    if lanes == 1 or os.environ.get("POINTILLIST_DITHER_LANES"):
+        return lanes
+    fs = KERNELS["floyd_steinberg"]
+    weights = tuple((dy, dx, n / fs.divisor) for dy, dx, n in fs.weights)
+    height, width = 2 * lanes + 3, 29
+    rng = np.random.default_rng(20261122)
+    values = Float(rng.uniform(0.0, 255.0, height * width).astype(np.float32))
+    tables = _quantiser(2, 128.0, False)
+    expected = _diffuse_core(values, height, width, 1, weights, False, tables, lanes=1).numpy()
+    guess = lanes
+    while lanes > 1 and not np.array_equal(
+            _diffuse_core(values, height, width, 1, weights, False, tables, lanes=lanes).numpy(), expected):
+        lanes //= 2
+    if lanes != guess:
+        warnings.warn(f"imaging.dither: Dr.Jit's SIMD packet is narrower than the {guess} lanes the CPU "
+                      f"flags suggest; using {lanes} (set POINTILLIST_DITHER_LANES to choose)", RuntimeWarning,
+                      stacklevel=2)
+    return lanes
+
+
 def _diffuse_core(values: Float, height: int, width: int, channels: int,
                   kernel: tuple[tuple[int, int, float], ...], serpentine: bool,
-                  tables: tuple[np.ndarray, np.ndarray, np.ndarray], carry: bool = False) -> Float:
-    """Error diffusion of the flat (H, W, C) float32 ``values`` (already clipped); returns the output levels."""
-    plan = _schedule(kernel, serpentine, width, channels, _packet_width())
+                  tables: tuple[np.ndarray, np.ndarray, np.ndarray], carry: bool = False,
+                  lanes: int | None = None) -> Float:
+    """Error diffusion of the flat (H, W, C) float32 ``values`` (already clipped); returns the output levels.
+
+    ``lanes``: rows processed together in one SIMD packet (default: :func:`_lanes`).
+    """
+    plan = _schedule(kernel, serpentine, width, channels, _lanes() if lanes is None else lanes)
     rows, right, left, order, own_w = plan["rows"], plan["right"], plan["left"], plan["order"], plan["own"]
     lanes, skew, prefetch, slots, stride = plan["lanes"], plan["skew"], plan["prefetch"], plan["slots"], plan["stride"]
     thresholds, work, display = tables

@@ -114,10 +114,28 @@ def test_floyd_steinberg_large_image_matches_reference():
 def test_result_does_not_depend_on_packet_width(monkeypatch, lanes):
     rng = np.random.default_rng(lanes)
     image = (rng.random((37, 29)) * 255).astype(np.float32)
-    monkeypatch.setattr(dither, "_packet_width", lambda: lanes)
+    monkeypatch.setattr(dither, "_lanes", lambda: lanes)
     for name in ("floyd_steinberg", "jarvis_judice_ninke"):
         expected = reference_diffuse(prepare(image), weights_of(name))
         assert np.array_equal(np.asarray(diffuse(image, name)), expected)
+
+
+def test_overestimated_packet_width_is_caught_and_halved(monkeypatch):
+    # The lane count comes from CPU flags; if it exceeds Dr.Jit's real SIMD packet, the one-time
+    # check against the one-lane schedule must catch it and fall back to a width that is exact.
+    monkeypatch.setattr(dither, "_packet_width", lambda: 64)
+    monkeypatch.delenv("POINTILLIST_DITHER_LANES", raising=False)
+    dither._lanes.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="narrower than the 64 lanes"):
+            lanes = dither._lanes()
+        assert 1 <= lanes < 64
+        rng = np.random.default_rng(5)
+        image = (rng.random((2 * lanes + 5, 23)) * 255).astype(np.float32)
+        expected = reference_diffuse(prepare(image), weights_of("floyd_steinberg"))
+        assert np.array_equal(np.asarray(diffuse(image, "floyd_steinberg")), expected)
+    finally:
+        dither._lanes.cache_clear()
 
 
 def test_error_diffusion_matches_reference():
