@@ -115,7 +115,7 @@ def test_toroidal_min_distance_against_scipy(mi):
 
 
 def test_poisson_edge_counts(mi):
-    from plugins.samplers.poisson import MAX_POINTS, poisson_disk_points
+    from plugins.samplers.poisson import MAX_POINTS, poisson_disk_points, toroidal_min_distance
 
     one, radius = poisson_disk_points(1)
     assert one.shape == (1, 2) and radius == math.inf
@@ -128,8 +128,21 @@ def test_poisson_edge_counts(mi):
         poisson_disk_points(MAX_POINTS + 1)
     with pytest.raises(ValueError, match="sample_count"):
         poisson_disk_points(0)
-    # deterministic: the same count always gives the same set
-    np.testing.assert_array_equal(poisson_disk_points.__wrapped__(16)[0], poisson_disk_points(16)[0])
+    # deterministic: the same count always gives the same set, and the shipped sets are
+    # exactly what the generator returns
+    from plugins.samplers.poisson import SHIPPED_COUNTS, generate_poisson_disk_points, hexagonal_radius
+
+    for n in (4, 16, 64, 25):
+        generated = generate_poisson_disk_points(n)
+        np.testing.assert_array_equal(generated[0], poisson_disk_points(n)[0])
+        assert generated[1] == poisson_disk_points(n)[1]
+    for n in SHIPPED_COUNTS[1:]:
+        points, radius = poisson_disk_points(n)
+        assert points.shape == (n, 2) and radius >= 0.65 * hexagonal_radius(n)
+        assert toroidal_min_distance(points) >= radius * (1 - 1e-6)
+    # a count that is not shipped is generated and keeps the property
+    points, radius = poisson_disk_points(37)
+    assert points.shape == (37, 2) and toroidal_min_distance(points) >= radius * (1 - 1e-6)
 
 
 def test_set_sample_count_reconfigures(mi):
