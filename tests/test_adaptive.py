@@ -136,10 +136,13 @@ def test_vertical_edge_equal_weighting_is_the_plain_mean(mi):
     np.testing.assert_allclose(image[:, 2, 0], 18 / 35, atol=1e-6)  # vs 0.1875 with area weights
 
 
-@pytest.mark.parametrize("weighting", ["area", "equal"])
-def test_threshold_zero_is_the_uniform_grid(mi, weighting):
+@pytest.mark.parametrize("weighting, threshold, min_depth", [("area", 0.0, 0), ("equal", 0.0, 0),
+                                                              ("area", math.inf, 2), ("equal", math.inf, 2)])
+def test_threshold_zero_is_the_uniform_grid(mi, weighting, threshold, min_depth):
+    # min_depth = max_depth splits everything whatever the threshold: the same grid.
     size, depth = 4, 2
-    scene = _gradient_scene(mi, _adaptive(threshold=0.0, max_depth=depth, weighting=weighting), size)
+    scene = _gradient_scene(mi, _adaptive(threshold=threshold, max_depth=depth, min_depth=min_depth,
+                                          weighting=weighting), size)
     image, count = _render(mi, scene)
     assert (count == (2 ** depth + 1) ** 2).all()
     n = 2 ** depth + 1
@@ -336,6 +339,7 @@ def test_variance_criterion_black_pixels_stop(mi):
     (dict(max_depth=-1), ValueError, "max_depth: expected an integer in 0..12"),
     (dict(max_depth=13), ValueError, "max_depth: expected an integer in 0..12"),
     (dict(max_depth=2.5), TypeError, "max_depth: expected an integer"),
+    (dict(max_depth=2, min_depth=3), ValueError, "min_depth: expected at most max_depth = 2, got 3"),
     (dict(max_error=0.0), ValueError, "max_error: expected a number > 0"),
     (dict(p_value=1.0), ValueError, "p_value: expected a number in (0, 1)"),
     (dict(max_sample_factor=0), ValueError, "max_sample_factor: expected an integer in 1.."),
