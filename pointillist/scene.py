@@ -45,7 +45,9 @@ def load_scene(path: str | Path, params: dict[str, str] | None = None):
     if not path.is_file():
         raise UsageError(f"scene: no such file: {path}")
     try:
-        return mi.load_file(str(path), **(params or {}))
+        # parallel=False: Mitsuba's parallel loader instantiates plugins in a random order, which
+        # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
+        return mi.load_file(str(path), parallel=False, **(params or {}))
     except RuntimeError as error:
         raise UsageError(f"scene {path}: {mitsuba_message(error)}") from None
 
@@ -54,7 +56,8 @@ def load_scene(path: str | Path, params: dict[str, str] | None = None):
 class RenderTiming:
     """Seconds spent in each phase of a render.
 
-    ``trace``: Python building the Dr.Jit graph; ``compile``: LLVM code
+    ``trace``: everything but compiling and running kernels (Python building the
+    Dr.Jit graph, memsets, reductions); ``compile``: LLVM code
     generation and compilation of the kernels (near zero when the kernels come
     from the ``~/.drjit`` cache); ``execute``: running the kernels;
     ``total``: wall time from the render call until the image is evaluated.
