@@ -97,6 +97,8 @@ __all__ = [
     "render_command",
     "compare_task",
     "prerender_sweep",
+    "mip_frame_task",
+    "project_frames",
 ]
 
 #: How often a task that raises is re-run (``retries=`` of ``Client.submit``).
@@ -770,6 +772,62 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
     run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
               desc="compare on cluster")
     return len(todo)
+
+
+# --------------------------------------------------------------------------- `pointillist mip --turntable`
+_VOLUMES: OrderedDict = OrderedDict()
+
+
+def mip_frame_task(spec: dict) -> dict:
+    """Project one frame of a volume in this process (a worker); picklable.
+
+    ``spec``: ``volume`` (path), ``spacing`` (or None), ``view`` (keyword
+    arguments of the view: ``view``/``azimuth``/``elevation``) and ``options``
+    (the other keyword arguments of
+    :func:`pointillist.commands.mip.project_volume`). The volume and its
+    texture stay loaded per process for the next frame. Returns
+    ``{"image": (H, W) float32, "seconds": projection time here,
+    "texture": the integrator's texture_info(), "worker": host:pid}``.
+    """
+    _setup_process()
+    from pointillist.commands.mip import project_volume
+    from pointillist.volumes import load_volume
+
+    path = str(Path(spec["volume"]).resolve())
+    try:
+        stamp = os.stat(path).st_mtime_ns
+    except OSError:
+        raise UsageError(f"volume: no such file or folder: {path}") from None
+    spacing = tuple(spec["spacing"]) if spec.get("spacing") else None
+    key = (path, stamp, spacing, tuple(sorted(spec["options"].items())))
+    entry = _VOLUMES.get(key)
+    if entry is None:
+        _VOLUMES.clear()  # one volume per process: they can be large
+        entry = _VOLUMES[key] = {"volume": load_volume(path, spacing=list(spacing) if spacing else None),
+                                 "integrator": None}
+    start = time.perf_counter()
+    image, entry["integrator"] = project_volume(entry["volume"], **spec["view"], **spec["options"],
+                                                integrator=entry["integrator"])
+    return {"image": np.asarray(image, dtype=np.float32), "seconds": time.perf_counter() - start,
+            "texture": entry["integrator"].texture_info(), "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def project_frames(volume: str | os.PathLike, views: Sequence[dict], options: dict, *, spacing=None,
+                   workers: int | None = None, scheduler: str | None = None, retries: int = DEFAULT_RETRIES,
+                   progress: bool = True) -> list[dict]:
+    """Project every view of a volume (turntable frames) as tasks; results in view order.
+
+    Runs on a local cluster of ``workers`` processes or the cluster at
+    ``scheduler`` (each worker loads the volume once, by the same path). See
+    :func:`mip_frame_task` for what each result holds.
+    """
+    specs = [{"volume": str(Path(volume).resolve()), "spacing": list(spacing) if spacing else None,
+              "view": dict(view), "options": dict(options)} for view in views]
+    keys = [hashlib.sha256(json.dumps(s, sort_keys=True, default=_json_default).encode()).hexdigest()
+            for s in specs]
+    with open_client(workers, scheduler) as client:
+        return run_tasks(mip_frame_task, specs, client=client, keys=keys, retries=retries, progress=progress,
+                         desc="mip frames")
 
 
 # --------------------------------------------------------------------------- `pointillist render --tiles`

@@ -202,28 +202,36 @@ def test_aov_depth_tiles_exact(mi, tmp_path):
     np.testing.assert_allclose(tiled.image, untiled, rtol=1e-5, atol=1e-5)
 
 
-def test_tiled_path_tracer_agrees_statistically(mi):
-    params, spp = {"res": "24"}, 64
-    a = _untiled(mi, DEFAULT, params, spp, seed=11)
-    b = _untiled(mi, DEFAULT, params, spp, seed=12)
-    tiled = render_tiled(DEFAULT, params, tiles=(2, 2), spp=spp, seed=11, progress=False).image
-    seeds = {r.task.seed for r in render_tiled(DEFAULT, params, tiles=(2, 2), spp=1, seed=11,
+def test_tiled_path_tracer_agrees_statistically(mi, tmp_path):
+    # Mitsuba's path tracer, a constant sky and a point light: noisy everywhere.
+    scene = tmp_path / "path.xml"
+    scene.write_text(DETERMINISTIC.replace("CROP", "")
+                     .replace('<integrator type="direct">', '<integrator type="path"><integer name="max_depth" '
+                              'value="3"/>')
+                     .replace('<integer name="emitter_samples" value="1"/>\n        '
+                              '<integer name="bsdf_samples" value="0"/>', "")
+                     .replace('<sampler type="stratified">', '<sampler type="independent">')
+                     .replace('<boolean name="jitter" value="false"/>', "")
+                     .replace("</scene>", '<emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>'
+                              "</scene>"))
+    params, spp = {}, 32
+    a = _untiled(mi, scene, params, spp, seed=11)
+    b = _untiled(mi, scene, params, spp, seed=12)
+    tiled = render_tiled(scene, params, tiles=(2, 2), spp=spp, seed=11, progress=False).image
+    seeds = {r.task.seed for r in render_tiled(scene, params, tiles=(2, 2), spp=1, seed=11,
                                                progress=False).results}
     assert seeds == {44, 45, 46, 47}
 
-    # Path-traced noise here is heavy-tailed (caustics through the glass sphere), so compare
-    # robust statistics: the median and the mean absolute per-channel difference.
-    def median(x, y):
-        return float(np.median(np.abs(x - y)))
-
+    # Mean absolute per-channel difference (robust to the heavy tail of path-traced noise; the
+    # median is not: many sky pixels have none). Across base seeds 3, 11, 77, 500 the ratios
+    # below stayed within 0.92..1.08.
     def mae(x, y):
         return float(np.mean(np.abs(x - y)))
 
-    for distance in (median, mae):
-        noise = distance(a, b)  # two independent untiled renders
-        assert noise > 0.005
-        # The tiled render is as far from each untiled one as they are from each other.
-        assert 0.75 < distance(tiled, a) / noise < 1.33 and 0.75 < distance(tiled, b) / noise < 1.33
+    noise = mae(a, b)  # two independent untiled renders
+    assert noise > 0.01 * a.mean()
+    # The tiled render is as far from each untiled one as they are from each other.
+    assert 0.8 < mae(tiled, a) / noise < 1.25 and 0.8 < mae(tiled, b) / noise < 1.25
     # Not the same random numbers as the untiled render with the base seed.
     assert not np.allclose(tiled, a, atol=1e-3)
     # Same image brightness within 5 %.
@@ -407,3 +415,24 @@ def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
     # Run again: everything is cached, nothing is sent to the cluster.
     again = cli(*common, "--out", tmp_path / "remote", "--workers", "2")
     assert again.returncode == 0 and "0 renders done on the cluster" in again.stdout, again.stderr
+
+
+def test_mip_turntable_frames_on_workers_equal_serial(cli, tmp_path):
+    """`mip --turntable N --workers 2`: each frame a task; the EXR frames equal the serial ones."""
+    from imaging.io import read_exr
+
+    z, y, x = np.mgrid[0:10, 0:9, 0:8]
+    volume = np.exp(-((x - 3.0) ** 2 + (y - 5.0) ** 2 + (z - 4.0) ** 2) / 6.0).astype(np.float32)
+    volume[2, 2, 6] = 2.0  # an off-centre bright voxel: frames differ as the view turns
+    np.save(tmp_path / "v.npy", volume)
+    common = ["mip", tmp_path / "v.npy", "--turntable", "4", "--size", "20", "--elevation", "15"]
+    serial = cli(*common, "-o", tmp_path / "s.exr")
+    assert serial.returncode == 0, serial.stderr
+    remote = cli(*common, "-o", tmp_path / "r.exr", "--workers", "2")
+    assert remote.returncode == 0, remote.stderr
+    frames = []
+    for k in range(4):
+        a, b = read_exr(tmp_path / f"s_{k:03d}.exr").image, read_exr(tmp_path / f"r_{k:03d}.exr").image
+        np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-6)
+        frames.append(a)
+    assert frames[0].max() > 0.9 and not np.allclose(frames[0], frames[1])  # real, turning frames

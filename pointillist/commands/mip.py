@@ -205,6 +205,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="texture storage (auto: half precision where exact)")
     parser.add_argument("--turntable", type=positive_int, metavar="N",
                         help="write N frames turning about z (OUT_000.png ...) and OUT.gif")
+    cluster = parser.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=positive_int, metavar="N",
+                         help="project the frames as tasks on a local Dask cluster of N worker processes")
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help="project the frames on an existing Dask cluster (e.g. tcp://host:8786); "
+                              "the workers read VOLUME by the same path")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -262,13 +268,26 @@ def run(args: argparse.Namespace) -> int:
     integrator = None
     frames = []
     render_s = 0.0
+    remote = None
+    if args.workers or args.scheduler:  # every frame a task (pointillist.distributed)
+        from pointillist.distributed import project_frames
+
+        remote = project_frames(args.volume, views, dict(
+            size=args.size, native=args.native_size, mode=args.mode, interpolation=args.interpolation,
+            step=args.step, perspective=args.perspective, precision=args.precision,
+            background=args.background), spacing=spacing, workers=args.workers, scheduler=args.scheduler)
+        render_s = sum(r["seconds"] for r in remote)
+        remote_images = iter([r["image"] for r in remote])
     for view, name in tqdm(list(zip(views, names)), desc="mip", unit="frame", disable=len(names) == 1):
-        t = time.perf_counter()
-        image, integrator = project_volume(
-            volume, **view, size=args.size, native=args.native_size, mode=args.mode,
-            interpolation=args.interpolation, step=args.step, perspective=args.perspective,
-            precision=args.precision, background=args.background, integrator=integrator)
-        render_s += time.perf_counter() - t
+        if remote is not None:
+            image = next(remote_images)
+        else:
+            t = time.perf_counter()
+            image, integrator = project_volume(
+                volume, **view, size=args.size, native=args.native_size, mode=args.mode,
+                interpolation=args.interpolation, step=args.step, perspective=args.perspective,
+                precision=args.precision, background=args.background, integrator=integrator)
+            render_s += time.perf_counter() - t
         if window is None:  # one window for all frames: the first frame's value range
             finite = image[np.isfinite(image)]
             lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
@@ -284,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
             check_output_path(gif, [args.volume], name="--output")
             imageio.mimsave(gif, frames, duration=1000 / 25, loop=0)
             print(f"wrote {gif}")
-    info = integrator.texture_info()
+    info = integrator.texture_info() if remote is None else remote[0]["texture"]
     print(f"wrote {names[0]}" + (f" ... {names[-1]} ({len(names)} frames)" if len(names) > 1 else ""))
     nx, ny, nz = volume.shape_xyz
     print(f"volume {nx}x{ny}x{nz} {volume.data.dtype} spacing {', '.join(f'{s:g}' for s in volume.spacing)}; "
