@@ -1,0 +1,87 @@
+"""The fast code paths of imaging.filters / imaging.resample that only large images take.
+
+tests/test_filters.py and tests/test_resample.py use small images; the speed work added
+paths that switch on with size (the 16-way min/max fold, the two-pass 5x5 median, ...).
+These tests run them on images big enough to take those paths, against numpy, scipy and
+OpenCV.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+
+import imaging  # noqa: F401  (libLLVM first)
+from imaging import filters as F
+
+RNG = np.random.default_rng(606)
+
+
+def out(x):
+    return np.asarray(x)
+
+
+def test_finite_extrema_fold_matches_numpy():
+    from drjit.llvm import Float
+
+    for n in (16 * 1024, 16 * 1024 + 7, 40_000):
+        values = (RNG.standard_normal(n) * 100).astype(np.float32)
+        values[RNG.integers(0, n, 50)] = np.nan
+        values[RNG.integers(0, n, 5)] = np.inf
+        values[RNG.integers(0, n, 5)] = -np.inf
+        finite = values[np.isfinite(values)]
+        assert F._finite_extrema(Float(values)) == (float(finite.min()), float(finite.max()))
+        # the extremes placed in the tail (past the 16 folded views) and at the very start
+        tail = values.copy()
+        tail[-1] = 1e6
+        tail[0] = -1e6
+        assert F._finite_extrema(Float(tail)) == (-1e6, 1e6)
+    assert F._finite_extrema(Float(np.full(20_000, np.nan, np.float32))) is None
+
+
+def test_normalize_large_image_matches_numpy():
+    img = (RNG.standard_normal((150, 130)) * 50).astype(np.float32)
+    img[3, 4] = np.nan
+    img[7, 9] = np.inf
+    a = np.abs(img)
+    finite = a[np.isfinite(a)]
+    expected = np.clip((a - finite.min()) * (255 / (finite.max() - finite.min())), 0, 255)
+    expected[7, 9] = 255
+    got = out(F.normalize(img))
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-3)
+    assert np.isnan(got[3, 4])
+
+
+@pytest.mark.parametrize("border", ["zero", "keep", "clamp", "wrap"])
+def test_correlate_normalize_large_image_ignores_the_ring(border):
+    img = (RNG.random((160, 140)) * 255).astype(np.float32)
+    img[0, :] = 1e4          # a huge row on the border: in the ring for zero/keep, computed otherwise
+    mode = {"zero": "constant", "keep": "constant", "clamp": "nearest", "wrap": "wrap"}[border]
+    ref = np.abs(ndi.correlate(img.astype(np.float64), F.SOBEL_X.astype(np.float64), mode=mode))
+    computed = ref[1:-1, 1:-1] if border in ("zero", "keep") else ref
+    low, high = computed.min(), computed.max()
+    expected = (ref - low) * 255 / (high - low)
+    got = out(F.correlate(img, F.SOBEL_X, border=border, normalize=True))
+    if border in ("zero", "keep"):
+        np.testing.assert_allclose(got[1:-1, 1:-1], expected[1:-1, 1:-1], atol=2e-2)
+        ring = np.ones(img.shape, bool)
+        ring[1:-1, 1:-1] = False
+        np.testing.assert_array_equal(got[ring], 0 if border == "zero" else img[ring])
+    else:
+        np.testing.assert_allclose(got, expected, atol=2e-2)
+    assert got[1:-1, 1:-1].min() == 0 or border not in ("zero", "keep")
+
+
+def test_median_large_images_match_opencv_and_scipy():
+    img = (RNG.random((70, 90)) * 255).astype(np.float32)
+    img[RNG.random(img.shape) < 0.05] = 255       # salt
+    for size in (3, 5):
+        np.testing.assert_array_equal(out(F.median(img, size)), cv2.medianBlur(img, size))
+        for border, mode in (("reflect", "reflect"), ("wrap", "wrap"), ("constant", "constant")):
+            np.testing.assert_array_equal(out(F.median(img, size, border=border)),
+                                          ndi.median_filter(img, size=size, mode=mode))
+    colour = (RNG.random((40, 33, 3)) * 255).astype(np.float32)
+    np.testing.assert_array_equal(out(F.median(colour, 5, border="mirror")),
+                                  ndi.median_filter(colour, size=(5, 5, 1), mode="mirror"))
