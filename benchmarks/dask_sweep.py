@@ -2,7 +2,7 @@
 
 Run (on the shared 2-core machine, always under the lock)::
 
-    flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/distributed.py
+    flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/dask_sweep.py
 
 Measures, in one run:
 
@@ -33,8 +33,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# This file is named like the `distributed` package: take its own folder off the path.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(ROOT))
 
 SCENE = str(ROOT / "scenes" / "default.xml")
@@ -157,7 +155,7 @@ def main() -> int:
         f"path tracer, seeds differ per render. Workers: LocalCluster on loopback, "
         f"{args.workers} processes x 1 task thread, Dr.Jit threads per worker {sorted(set(threads.values()))}; "
         f"serial: this process, Dr.Jit {dr.thread_count()} threads.",
-        f"Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/distributed.py"
+        f"Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/dask_sweep.py"
         f" --renders {args.renders} --workers {args.workers} --res {args.res} --spp {args.spp}"
         f" --repeats {args.repeats}`. Warm rows: median of {args.repeats} sweeps, serial and distributed "
         "alternating.",
