@@ -640,6 +640,25 @@ _MEDIAN9 = ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 
             (5, 8), (4, 7), (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2))
 
 
+#: Devillard's 99-exchange median-of-25 network (N. Devillard 1998, ``opt_med25``, after
+#: Graphics Gems); median in wire 12. Checked on all 2^25 0-1 inputs against Batcher's sort
+#: (0-1 principle) in tests/test_spatial_fast_paths.py. 113 exchanges remain of a pruned Batcher.
+_MEDIAN25 = (
+    (0, 1), (3, 4), (2, 4), (2, 3), (6, 7), (5, 7), (5, 6), (9, 10), (8, 10), (8, 9), (12, 13),
+    (11, 13), (11, 12), (15, 16), (14, 16), (14, 15), (18, 19), (17, 19), (17, 18), (21, 22),
+    (20, 22), (20, 21), (23, 24), (2, 5), (3, 6), (0, 6), (0, 3), (4, 7), (1, 7), (1, 4),
+    (11, 14), (8, 14), (8, 11), (12, 15), (9, 15), (9, 12), (13, 16), (10, 16), (10, 13),
+    (20, 23), (17, 23), (17, 20), (21, 24), (18, 24), (18, 21), (19, 22), (8, 17), (9, 18),
+    (0, 18), (0, 9), (10, 19), (1, 19), (1, 10), (11, 20), (2, 20), (2, 11), (12, 21), (3, 21),
+    (3, 12), (13, 22), (4, 22), (4, 13), (14, 23), (5, 23), (5, 14), (15, 24), (6, 24), (6, 15),
+    (7, 16), (7, 19), (13, 21), (15, 23), (7, 13), (7, 15), (1, 9), (3, 11), (5, 17), (11, 17),
+    (9, 17), (4, 10), (6, 12), (7, 14), (4, 6), (4, 7), (12, 14), (10, 14), (6, 7), (10, 12),
+    (6, 10), (6, 17), (12, 17), (7, 17), (7, 10), (12, 18), (7, 12), (10, 18), (12, 20),
+    (10, 20), (10, 12))
+#: Fixed median networks: window size -> (exchanges, wire holding the median).
+_MEDIAN_NETWORKS = {9: (_MEDIAN9, 4), 25: (_MEDIAN25, 12)}
+
+
 def _batcher(n: int) -> list[tuple[int, int]]:
     """Batcher's odd-even merge sort network on the next power of two >= n (Knuth, TAOCP 5.3.4)."""
     size = 1 << max(0, (n - 1).bit_length())
@@ -667,11 +686,12 @@ def _exchange(a: Float, b: Float) -> tuple[Float, Float]:
 def _median_network(values: list[Float]) -> Float:
     """Median of the values with compare-exchanges only (Dr.Jit drops the unused halves)."""
     n = len(values)
-    if n == 9:
+    if n in _MEDIAN_NETWORKS:
+        network, middle = _MEDIAN_NETWORKS[n]
         wires = list(values)
-        for i, j in _MEDIAN9:
+        for i, j in network:
             wires[i], wires[j] = _exchange(wires[i], wires[j])
-        return wires[4]
+        return wires[middle]
     wires: list[Float | None] = list(values) + [None] * ((1 << (n - 1).bit_length()) - n)  # None = +inf
     for i, j in _batcher(n):
         if wires[j] is None:
@@ -687,8 +707,9 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     """Median filter: the ``size`` x ``size`` window sorted, the middle value replaces the centre (SPEC).
 
     The window's values are held in registers and pass through a sorting network
-    (Devillard's 19-exchange network for 3x3, Batcher's odd-even merge sort otherwise;
-    only the exchanges that lead to the middle value are compiled).
+    (Devillard's 19-exchange network for 3x3 and 99-exchange network for 5x5, Batcher's
+    odd-even merge sort otherwise; only the exchanges that lead to the middle value are
+    compiled). An exchange is one compare and two selects.
 
     Parameters
     ----------

@@ -85,3 +85,36 @@ def test_median_large_images_match_opencv_and_scipy():
     colour = (RNG.random((40, 33, 3)) * 255).astype(np.float32)
     np.testing.assert_array_equal(out(F.median(colour, 5, border="mirror")),
                                   ndi.median_filter(colour, size=(5, 5, 1), mode="mirror"))
+
+
+def _bit_sliced_wires(n):
+    """Wire i of all 2^n 0-1 inputs, bit-sliced: bit t of the uint64 words is bit i of t."""
+    words = np.arange(2 ** max(n - 6, 0), dtype=np.uint64)
+    low = [np.uint64(sum(1 << t for t in range(64) if (t >> i) & 1)) for i in range(6)]
+    wires = []
+    for i in range(n):
+        if i < 6:
+            wires.append(np.full(words.size, low[i], dtype=np.uint64))
+        else:
+            wires.append(np.where((words >> np.uint64(i - 6)) & np.uint64(1), ~np.uint64(0), np.uint64(0)))
+    return wires
+
+
+@pytest.mark.parametrize("n", [9, 25])
+def test_fixed_median_networks_on_every_0_1_input(n):
+    """0-1 principle: a comparator network that selects the median of every 0-1 input selects
+    the median of every input. Compared against Batcher's full sorting network."""
+    network, middle = F._MEDIAN_NETWORKS[n]
+    wires = _bit_sliced_wires(n)
+    for i, j in network:
+        wires[i], wires[j] = wires[i] & wires[j], wires[i] | wires[j]
+    reference = _bit_sliced_wires(n) + [None] * ((1 << (n - 1).bit_length()) - n)   # None = all ones
+    for i, j in F._batcher(n):
+        if reference[j] is None:
+            continue
+        if reference[i] is None:
+            reference[i], reference[j] = reference[j], None
+            continue
+        reference[i], reference[j] = reference[i] & reference[j], reference[i] | reference[j]
+    mask = np.uint64((1 << min(2 ** n, 64)) - 1) if n < 6 else ~np.uint64(0)
+    np.testing.assert_array_equal(wires[middle] & mask, reference[n // 2] & mask)
