@@ -65,9 +65,9 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float, Float64, Int32, UInt32
+from drjit.llvm import Bool, Float, Float64, Int32, UInt8, UInt32
 
-from imaging._array import TensorXf, as_tensor
+from imaging._array import TensorXf, _check_shape, as_tensor
 from imaging.filters import threshold
 
 __all__ = [
@@ -86,6 +86,7 @@ __all__ = [
     "bayer",
     "blue_noise",
     "blue_noise_mask",
+    "intensity_thresholds",
     "void_and_cluster",
     "dither_error",
 ]
@@ -639,39 +640,157 @@ def _ordered_values(values: Float, thresholds: Float, cells: int, levels: int) -
     """
     # Written so that every step is exact for integer intensities (products < 2^24, one
     # correctly rounded division whose quotient cannot round across an integer).
-    gaps = dr.opaque(Float, float(levels - 1))
-    full = dr.opaque(Float, 255.0)
+    gaps = _constant(Float, float(levels - 1))
+    full = _constant(Float, 255.0)
     scaled = values * gaps
     base = dr.minimum(dr.floor(scaled / full), gaps - 1.0)
     rest = scaled - base * full
-    n2 = dr.opaque(Float, float(cells))
+    n2 = _constant(Float, float(cells))
     p = dr.minimum(dr.floor(rest * (n2 + 1.0) / full), n2)
     up = dr.select(p >= thresholds, 1.0, 0.0)
     return (base + up) * full / gaps
 
 
-def _divmod(a: UInt32, divisor: int) -> tuple[UInt32, UInt32]:
+#: Above this many lanes the float32 reciprocal in :func:`_divmod` is no longer exact (float32
+#: holds every integer below 2^24 exactly; see the error bound there).
+_FLOAT32_EXACT = 1 << 24
+
+_CONSTANTS: dict[tuple[type, Any], Any] = {}
+
+
+def _constant(kind: type, value: Any) -> Any:
+    """An opaque (evaluated) Dr.Jit scalar, cached by ``(kind, value)``.
+
+    ``dr.opaque`` makes a kernel independent of the value (no recompilation per image size), but
+    each call costs a one-element memset launch; a repeated call with the same sizes reuses the
+    evaluated variable instead (Dr.Jit variables are immutable, so sharing them is safe).
+    """
+    key = (kind, value)
+    variable = _CONSTANTS.get(key)
+    if variable is None:
+        if len(_CONSTANTS) >= 512:
+            _CONSTANTS.clear()
+        variable = _CONSTANTS[key] = dr.opaque(kind, value)
+    return variable
+
+
+def _divmod(a: UInt32, divisor: int, bound: int | None = None) -> tuple[UInt32, UInt32]:
     """``a // divisor, a % divisor`` for a per-call divisor without vector integer division.
 
-    LLVM has no SIMD integer division (it runs lane by lane); a float64 reciprocal (opaque, so the
-    kernel does not depend on the size) and one correction step are exact for ``a < 2^32``.
+    LLVM has no SIMD integer division (it runs lane by lane). A power-of-two divisor is a shift
+    and a mask. Otherwise a reciprocal multiplication (opaque, so the kernel does not depend on
+    the size) and one correction step: in float64 it is exact for every ``a < 2^32``; when the
+    caller knows ``a < bound <= 2^24`` it runs in float32, exact there because a float32 holds
+    ``a`` exactly and, for divisor >= 2, the estimate of a / divisor < 2^23 is off by at most
+    2^23 * 2^-23 < 1 (two roundings of relative error 2^-24), which the correction step fixes.
     """
     if divisor == 1:
         return a, dr.zeros(UInt32, dr.width(a))
-    d = dr.opaque(UInt32, divisor)
-    q = UInt32(Float64(a) * dr.opaque(Float64, 1.0 / divisor))
+    if divisor & (divisor - 1) == 0:
+        return a >> _constant(UInt32, divisor.bit_length() - 1), a & _constant(UInt32, divisor - 1)
+    d = _constant(UInt32, divisor)
+    if bound is not None and bound <= _FLOAT32_EXACT:
+        q = UInt32(Float(a) * _constant(Float, float(np.float32(1.0) / np.float32(divisor))))
+    else:
+        q = UInt32(Float64(a) * _constant(Float64, 1.0 / divisor))
     r = Int32(a) - Int32(q * d)
     q = dr.select(r < 0, q - 1, dr.select(r >= Int32(d), q + 1, q))
     return q, a - q * d
 
 
+def _coordinates(count: int, width: int, channels: int) -> tuple[UInt32, UInt32]:
+    """Row and column of every value of a flat (H, W, C) array of ``count`` values."""
+    pixel = _divmod(dr.arange(UInt32, count), channels, count)[0]
+    return _divmod(pixel, width, -(-count // channels))
+
+
+def _template_index(n: int, y: UInt32, x: UInt32) -> UInt32:
+    """Row-major index of the template entry at (y mod n, x mod n) (shifts and masks for 2^k)."""
+    if n & (n - 1) == 0:  # powers of two (Bayer, TEMPLATE_4, blue noise): no division
+        mask = _constant(UInt32, n - 1)
+        return ((y & mask) << _constant(UInt32, n.bit_length() - 1)) | (x & mask)
+    return _divmod(y, n, dr.width(y))[1] * _constant(UInt32, n) + _divmod(x, n, dr.width(x))[1]
+
+
 def _template_thresholds(template: np.ndarray, y: UInt32, x: UInt32) -> Float:
     n = template.shape[0]
-    table = Float(template.ravel().astype(np.float32))
-    if n & (n - 1) == 0:  # powers of two (Bayer, TEMPLATE_4, blue noise): masks, no division
-        mask = dr.opaque(UInt32, n - 1)
-        return dr.gather(Float, table, ((y & mask) << dr.opaque(UInt32, n.bit_length() - 1)) | (x & mask))
-    return dr.gather(Float, table, _divmod(y, n)[1] * dr.opaque(UInt32, n) + _divmod(x, n)[1])
+    return dr.gather(Float, _template_table(template.tobytes(), n), _template_index(n, y, x))
+
+
+@lru_cache(maxsize=32)
+def _template_table(data: bytes, n: int) -> Float:
+    """The template entries as an evaluated Float table (cached: no copy per call)."""
+    table = Float(np.frombuffer(data, dtype=np.int64).astype(np.float32))
+    dr.eval(table)
+    return table
+
+
+def intensity_thresholds(template: Any) -> np.ndarray:
+    """The SPEC's ordered-dithering rule as one threshold per template entry, on 0..255.
+
+    p = min(floor(I (n^2 + 1) / 255), n^2) >= T holds exactly when I (n^2 + 1) >= 255 T (T <= n^2),
+    i.e. when I >= 255 T / (n^2 + 1). Returned is, per entry T, the smallest float32 x with
+    x (n^2 + 1) >= 255 T in exact arithmetic (products of a float32 and an integer below 2^29 are
+    exact in float64), so ``I >= table`` is the SPEC rule for EVERY float32 I, not only integers.
+    For 8-bit input it is the same as I >= ceil(255 T / (n^2 + 1)) (OpenCV's pre-tiled map).
+
+    Parameters
+    ----------
+    template : array_like, (n, n)
+        A permutation of 1..n^2.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32, shape (n, n), values in (0, 255).
+
+    Examples
+    --------
+    >>> from imaging.dither import TEMPLATE_4, intensity_thresholds
+    >>> intensity_thresholds([[1, 3], [4, 2]]).tolist()  # 255 T / 5
+    [[51.0, 153.0], [204.0, 102.0]]
+    >>> bool(intensity_thresholds(TEMPLATE_4)[0, 0] == 15.0)  # 255 / 17
+    True
+    """
+    template = _check_template(template)
+    return _intensity_thresholds(template.tobytes(), template.shape[0]).reshape(template.shape).copy()
+
+
+@lru_cache(maxsize=32)
+def _intensity_thresholds(data: bytes, n: int) -> np.ndarray:
+    template = np.frombuffer(data, dtype=np.int64).astype(np.float64)
+    cells = float(n * n + 1)
+    target = 255.0 * template  # exact
+    x = (target / cells).astype(np.float32)
+    up, down = np.float32(np.inf), np.float32(-np.inf)
+    while np.any(low := x.astype(np.float64) * cells < target):  # below: step up
+        x = np.where(low, np.nextafter(x, up), x)
+    while np.any(fits := np.nextafter(x, down).astype(np.float64) * cells >= target):  # not smallest
+        x = np.where(fits, np.nextafter(x, down), x)
+    return x
+
+
+@lru_cache(maxsize=32)
+def _threshold_table(data: bytes, n: int) -> Float:
+    table = Float(_intensity_thresholds(data, n))
+    dr.eval(table)
+    return table
+
+
+def _is_uint8(image: Any) -> bool:
+    return isinstance(image, np.ndarray) and image.dtype == np.uint8
+
+
+def _ordered_1bit(values: Float, template: np.ndarray, y: UInt32, x: UInt32) -> Float:
+    """1-bit ordered dithering in one pass: white where I >= the entry's intensity threshold.
+
+    No clipping is needed: NaN compares false (black, as NaN -> 0), values above 255 pass every
+    threshold (< 255) and values below 0 pass none (> 0), exactly as after clipping.
+    """
+    n = template.shape[0]
+    table = _threshold_table(template.tobytes(), n)
+    up = values >= dr.gather(Float, table, _template_index(n, y, x))
+    return dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0))
 
 
 def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf:
@@ -683,7 +802,8 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
-        Intensities on 0..255; NaN -> 0, clipped to 0..255.
+        Intensities on 0..255; NaN -> 0, clipped to 0..255. A numpy ``uint8`` array is read as
+        packed bytes (4 per 32-bit word), without a float32 copy.
     template : array_like, (n, n)
         A permutation of 1..n^2 (default the SPEC's :data:`TEMPLATE_4`; see :func:`bayer`,
         :func:`clustered_dot`, :func:`blue_noise_mask`). A 1 x 1 template [[1]] is a threshold at
@@ -698,6 +818,14 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     drjit.llvm.TensorXf
         Same shape; 0 and 255 (or the ``levels`` values). 0 stays 0 and 255 stays 255.
 
+    Notes
+    -----
+    1-bit output (``levels=2``) is one pass over the image: the rule p >= T is turned into
+    I >= 255 T / (n^2 + 1) (:func:`intensity_thresholds`, exact for every float32 I), so a pixel
+    costs one read, one look-up in an n x n table (the template index from shifts and masks for
+    power-of-two templates and widths, else a float reciprocal), one comparison and one write.
+    ``levels > 2`` computes p per pixel (exact for integer intensities).
+
     Examples
     --------
     >>> import numpy as np
@@ -705,17 +833,28 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     >>> np.asarray(ordered(np.full((4, 4), 128.0))).astype(int).tolist()[0]
     [255, 0, 255, 0]
     """
-    template = _check_template(template)
-    levels = _check_levels(levels)
-    linear = _check_bool(linear, "linear")
-    tensor, values = _intensity(image)
+    return _ordered(image, _check_template(template), _check_levels(levels), _check_bool(linear, "linear"))
+
+
+def _ordered(image: Any, template: np.ndarray, levels: int, linear: bool) -> TensorXf:
+    if _is_uint8(image):
+        _check_shape(image.shape, "image", None, False)
+        shape = tuple(image.shape)
+        # One byte per value, widened to float inside the kernel (no float32 copy of the image).
+        values = Float(UInt8(np.ascontiguousarray(image).reshape(-1)))
+    else:
+        tensor = as_tensor(image)
+        shape = tuple(tensor.shape)
+        values = tensor.array
     if linear:
-        values = _srgb_decode_255(values)
-    shape = tuple(tensor.shape)
+        values = _srgb_decode_255(_clipped(values))
     channels = shape[2] if len(shape) == 3 else 1
     n = template.shape[0]
-    pixel = _divmod(dr.arange(UInt32, dr.width(values)), channels)[0]
-    y, x = _divmod(pixel, shape[1])
+    y, x = _coordinates(dr.width(values), shape[1], channels)
+    if levels == 2:
+        return TensorXf(_ordered_1bit(values, template, y, x), shape)
+    if not linear:
+        values = _clipped(values)
     thresholds = _template_thresholds(template, y, x)
     return TensorXf(_ordered_values(values, thresholds, n * n, levels), shape)
 
@@ -881,7 +1020,12 @@ def blue_noise_mask() -> np.ndarray:
     ``void_and_cluster(64, sigma=1.5, seed=0)``, stored as ``imaging/data/blue_noise_64.npy``
     (regenerate with ``np.save(path, void_and_cluster(64))``).
     """
-    mask = np.load(_BLUE_NOISE_FILE)
+    return _blue_noise_mask().view()  # read-only
+
+
+@lru_cache(maxsize=1)
+def _blue_noise_mask() -> np.ndarray:
+    mask = _check_template(np.load(_BLUE_NOISE_FILE), "blue noise mask")
     mask.setflags(write=False)
     return mask
 
@@ -899,7 +1043,9 @@ def blue_noise(image: Any, *, levels: int = 2, linear: bool = False, mask: Any =
     >>> int((np.asarray(blue_noise(np.full((64, 64), 64.0))) == 255).sum())  # p = floor(64 * 4097 / 255)
     1028
     """
-    return ordered(image, blue_noise_mask() if mask is None else mask, levels=levels, linear=linear)
+    if mask is None:  # the shipped mask: loaded and checked once per process
+        return _ordered(image, _blue_noise_mask(), _check_levels(levels), _check_bool(linear, "linear"))
+    return ordered(image, mask, levels=levels, linear=linear)
 
 
 # --------------------------------------------------------------------------------------------
