@@ -72,6 +72,19 @@ def test_png_input_and_plot(tmp_path, capsys):
         assert image.format == "PNG" and image.size[0] > 300
 
 
+def test_plot_flags_do_not_swallow_the_input(tmp_path, capsys):
+    source = tmp_path / "in.png"
+    write_png(source, RNG.integers(0, 256, (8, 9)).astype(np.float32), srgb=False, max_value=255)
+    # --plot first: it takes no value, so IN stays the input
+    status, stdout, err = run(capsys, "--plot", source, "-o", tmp_path / "a.png", "--steps", "equalize")
+    assert status == 0, err
+    assert (tmp_path / "a_histogram.png").is_file()
+    status, stdout, err = run(capsys, "--plot-file", tmp_path / "h.png", source, "-o", tmp_path / "b.png",
+                              "--steps", "equalize")
+    assert status == 0, err
+    assert (tmp_path / "h.png").is_file() and not (tmp_path / "b_histogram.png").exists()
+
+
 def test_non_finite_input_warns_on_one_line(tmp_path, capsys):
     bad = HDR.copy()
     bad[0, 0, 0], bad[1, 1, 1] = np.nan, np.inf

@@ -34,8 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="dither last, e.g. floyd_steinberg or ordered:levels=4")
     parser.add_argument("--report", action="store_true",
                         help="print statistics after each step (and the dither error)")
-    parser.add_argument("--plot", nargs="?", const="", metavar="FILE",
-                        help="write a before/after histogram plot (default: OUTPUT stem + _histogram.png)")
+    parser.add_argument("--plot", action="store_true",
+                        help="write a before/after histogram plot (OUTPUT stem + _histogram.png)")
+    parser.add_argument("--plot-file", metavar="FILE", help="write the histogram plot here (implies --plot)")
     parser.add_argument("--list-steps", action="store_true", help="list the known steps and exit")
 
 
@@ -127,8 +128,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         write_png(out, current, srgb=False, max_value=255.0, inputs=[source])
     print(f"wrote {out} ({'; '.join(done)})")
-    if args.plot is not None:
-        plot = Path(args.plot) if args.plot else out.with_name(out.stem + "_histogram.png")
+    if args.plot or args.plot_file:
+        plot = Path(args.plot_file) if args.plot_file else out.with_name(out.stem + "_histogram.png")
         histogram_plot(plot, before, current, linear_before=source.suffix.lower() == ".exr",
                        title=f"{source.name}: {'; '.join(done)}", inputs=[source])
         print(f"wrote {plot}")
