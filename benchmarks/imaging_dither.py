@@ -2,19 +2,27 @@
 
 Run (the machine is shared; always under the lock):
 
-    flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_dither.py [--size 2048] [--repeats 15]
+    flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_dither.py [--size 2048] [--repeats 21]
 
 Goals (issue 7): Floyd-Steinberg at most 1.0x Pillow's ``Image.convert('1')``; ordered / Bayer /
-blue-noise at most 0.5x OpenCV's ``cv2.compare`` against a pre-tiled threshold map (the map is
-built outside the timed region: it is the equivalent threshold ceil(255 T / (n^2 + 1)) so that
-``I >= map`` is exactly the SPEC rule p >= T for 8-bit input). Every other kernel is reported.
+blue-noise at most 0.5x OpenCV's ``cv2.compare`` against a pre-tiled threshold map (built outside
+the timed region). Every other kernel is reported.
 
-Timing: ours and the peer alternate inside one loop (same machine state); steady state is the
-median of the repeats after warm-up, each ending with ``dr.eval`` + ``dr.sync_thread()``.
-Input: a 2048 x 2048 8-bit image (a smooth gradient with noise), given to our functions as a
-float32 Dr.Jit tensor ("tensor") and as a numpy uint8 array ("uint8", conversion included). JIT
-compile time is the first call minus the steady-state time, measured in fresh processes with an
-empty (cold) and then a populated (warm) Dr.Jit kernel cache (``$HOME/.drjit``).
+Like with like: ordered dithering is timed twice against OpenCV,
+(a) float32 in both: our float32 tensor vs ``cv2.compare(float32 image, float32 tiled map)``; the
+    map holds :func:`imaging.dither.intensity_thresholds` (I >= map is exactly the SPEC rule);
+(b) uint8 in both: our uint8 path (bytes read in the kernel) vs ``cv2.compare(uint8 image,
+    uint8 tiled map ceil(255 T / (n^2 + 1)))``.
+Both results are checked equal to ours before timing. Bytes moved differ and are printed: OpenCV
+writes a uint8 mask (1 B/pixel), we write float32 levels (4 B/pixel, the module's convention).
+OpenCV runs with 1 and with 2 threads (``cv2.setNumThreads``) and the faster median counts.
+
+Timing: ours and the peers alternate inside one loop (same machine state); steady state is the
+median of the repeats after warm-up, each of ours ending with ``dr.eval`` + ``dr.sync_thread()``.
+Our kernel time (Dr.Jit kernel history: launches per call, summed execution time) is reported
+beside the wall time. JIT compile time is the first call minus the steady-state time, measured in
+fresh processes with an empty (cold) and then a populated (warm) Dr.Jit kernel cache
+(``$HOME/.drjit``).
 """
 
 from __future__ import annotations
@@ -52,8 +60,10 @@ import imaging.dither as d
 from drjit.llvm import TensorXf
 image = TensorXf(test_image({size}).astype(np.float32)); dr.eval(image)
 result = {{}}
+u8 = test_image({size})
 for name, fn in (("floyd_steinberg", lambda: d.floyd_steinberg(image)),
-                 ("ordered", lambda: d.ordered(image))):
+                 ("ordered (float32)", lambda: d.ordered(image)),
+                 ("ordered (uint8)", lambda: d.ordered(u8))):
     times = []
     for _ in range(4):
         t0 = time.perf_counter(); out = fn(); dr.eval(out); dr.sync_thread(); times.append(time.perf_counter() - t0)
@@ -68,7 +78,8 @@ print(json.dumps(result))
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=2048)
-    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--repeats", type=int, default=21)
+    parser.add_argument("--only", choices=("all", "ordered", "diffusion"), default="all")
     parser.add_argument("--json", type=Path, help="also write the numbers as JSON")
     args = parser.parse_args()
 
@@ -82,9 +93,12 @@ def main() -> int:
     import imaging.dither as d
 
     size, repeats = args.size, args.repeats
+    odd = size - 1  # a width that is not a power of two: the template index needs a division
     u8 = test_image(size)
-    tensor = TensorXf(u8.astype(np.float32))
-    dr.eval(tensor)
+    u8_odd = np.ascontiguousarray(test_image(size)[:odd, :odd])
+    f32, f32_odd = u8.astype(np.float32), u8_odd.astype(np.float32)
+    tensor, tensor_odd = TensorXf(f32), TensorXf(f32_odd)
+    dr.eval(tensor, tensor_odd)
     pil = Image.fromarray(u8)
 
     def ours(fn, *a, **k):
@@ -95,71 +109,114 @@ def main() -> int:
             return out
         return run
 
-    def tiled_map(template):
-        n = template.shape[0]
-        levels = np.ceil(255.0 * template / (n * n + 1)).astype(np.uint8)
-        return np.tile(levels, (-(-size // n), -(-size // n)))[:size, :size].copy()
+    def opencv(threads, a, b):
+        # setNumThreads outside the timed call; returns (setup, timed call)
+        return (lambda: cv2.setNumThreads(threads)), (lambda: cv2.compare(a, b, cv2.CMP_GE))
 
-    pairs = {
-        "floyd_steinberg (tensor)": (ours(d.floyd_steinberg, tensor), lambda: pil.convert("1"), "Pillow convert('1')"),
-        "floyd_steinberg (uint8)": (ours(d.floyd_steinberg, u8), lambda: pil.convert("1"), "Pillow convert('1')"),
-    }
-    for name in d.KERNELS:
-        if name != "floyd_steinberg":
-            pairs[f"{name} (tensor)"] = (ours(d.diffuse, tensor, name), lambda: pil.convert("1"), "Pillow FS")
-    pairs["floyd_steinberg serpentine"] = (ours(d.floyd_steinberg, tensor, serpentine=True),
-                                           lambda: pil.convert("1"), "Pillow FS")
-    pairs["error_diffusion (simple)"] = (ours(d.error_diffusion, tensor), lambda: pil.convert("1"), "Pillow FS")
-    pairs["floyd_steinberg levels=4"] = (ours(d.floyd_steinberg, tensor, levels=4), lambda: pil.convert("1"),
-                                         "Pillow FS")
-    for label, template in (("ordered 4x4", d.TEMPLATE_4), ("bayer 8x8", d.bayer(8)),
-                            ("blue_noise 64x64", d.blue_noise_mask())):
-        threshold_map = tiled_map(template)
-        pairs[f"{label} (tensor)"] = (ours(d.ordered, tensor, template),
-                                      lambda m=threshold_map: cv2.compare(u8, m, cv2.CMP_GE), "cv2.compare")
-        pairs[f"{label} (uint8)"] = (ours(d.ordered, u8, template),
-                                     lambda m=threshold_map: cv2.compare(u8, m, cv2.CMP_GE), "cv2.compare")
-    pairs["pattern 4x4"] = (ours(d.pattern, tensor), None, "")
-    pairs["halftone n=3 (6144^2 out)"] = (ours(d.halftone, tensor, 3), None, "")
+    def tiled(table, shape):
+        n = table.shape[0]
+        return np.ascontiguousarray(np.tile(table, (-(-shape[0] // n), -(-shape[1] // n)))[:shape[0], :shape[1]])
 
-    # Check that the OpenCV map really is the SPEC rule before timing it.
-    check = np.asarray(d.ordered(u8, d.TEMPLATE_4)) > 0
-    assert np.array_equal(check, cv2.compare(u8, tiled_map(d.TEMPLATE_4), cv2.CMP_GE) > 0)
+    pillow = {"Pillow convert('1')": (None, lambda: pil.convert("1"))}
+    rows = []  # (label, ours, {peer: (setup, fn)}, bytes ours, bytes peer)
+    pixels = size * size
+    if args.only in ("all", "diffusion"):
+        rows.append(("floyd_steinberg (float32 tensor)", ours(d.floyd_steinberg, tensor), pillow, None, None))
+        rows.append(("floyd_steinberg (uint8 numpy)", ours(d.floyd_steinberg, u8), pillow, None, None))
+    if args.only in ("all", "ordered"):
+        cases = (("ordered 4x4", d.TEMPLATE_4), ("bayer 8x8", d.bayer(8)), ("blue_noise 64x64", d.blue_noise_mask()))
+        for label, template in cases:
+            n = template.shape[0]
+            map_f32 = tiled(d.intensity_thresholds(template), (size, size))
+            map_u8 = tiled((-(-255 * template // (n * n + 1))).astype(np.uint8), (size, size))
+            mine = np.asarray(d.ordered(tensor, template)) > 0
+            assert np.array_equal(mine, cv2.compare(f32, map_f32, cv2.CMP_GE) > 0), label
+            assert np.array_equal(mine, cv2.compare(u8, map_u8, cv2.CMP_GE) > 0), label
+            assert np.array_equal(mine, np.asarray(d.ordered(u8, template)) > 0), label
+            rows.append((f"{label}, float32 in both", ours(d.ordered, tensor, template),
+                         {f"cv2.compare f32, {t} thr": opencv(t, f32, map_f32) for t in (1, 2)},
+                         8 * pixels, 9 * pixels))
+            rows.append((f"{label}, uint8 in both", ours(d.ordered, u8, template),
+                         {f"cv2.compare u8, {t} thr": opencv(t, u8, map_u8) for t in (1, 2)},
+                         5 * pixels, 3 * pixels))
+        map_odd = tiled(d.intensity_thresholds(d.TEMPLATE_4), (odd, odd))
+        assert np.array_equal(np.asarray(d.ordered(tensor_odd)) > 0, cv2.compare(f32_odd, map_odd, cv2.CMP_GE) > 0)
+        rows.append((f"ordered 4x4, float32, {odd}x{odd}", ours(d.ordered, tensor_odd),
+                     {f"cv2.compare f32, {t} thr": opencv(t, f32_odd, map_odd) for t in (1, 2)},
+                     8 * odd * odd, 9 * odd * odd))
+        rows.append(("ordered 4x4 levels=4 (float32)", ours(d.ordered, tensor, levels=4), {}, None, None))
+        rows.append(("pattern 4x4 (float32)", ours(d.pattern, tensor), {}, None, None))
+        rows.append(("halftone n=3 (float32; 6144^2 out)", ours(d.halftone, tensor, 3), {}, None, None))
+    if args.only in ("all", "diffusion"):
+        for name in d.KERNELS:
+            if name != "floyd_steinberg":
+                rows.append((f"{name} (float32)", ours(d.diffuse, tensor, name), pillow, None, None))
+        rows.append(("floyd_steinberg serpentine (sequential)", ours(d.floyd_steinberg, tensor, serpentine=True),
+                     pillow, None, None))
+        rows.append(("error_diffusion, simple serpentine (sequential)", ours(d.error_diffusion, tensor), pillow,
+                     None, None))
+        rows.append(("floyd_steinberg levels=4", ours(d.floyd_steinberg, tensor, levels=4), pillow, None, None))
 
-    rows = []
-    for label, (mine, peer, peer_name) in tqdm(pairs.items(), desc="dither benchmarks"):
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    results = []
+    threads_before = cv2.getNumThreads()
+    for label, mine, peers, bytes_mine, bytes_peer in tqdm(rows, desc="dither benchmarks"):
         mine()
-        if peer:
-            peer()
-        t_mine, t_peer = [], []
+        for setup, fn in peers.values():
+            if setup:
+                setup()
+            fn()
+        dr.kernel_history()
+        t_mine, t_kernel, launches = [], [], []
+        t_peer = {name: [] for name in peers}
         for _ in range(repeats):
-            t0 = time.perf_counter(); mine(); t_mine.append(time.perf_counter() - t0)
-            if peer:
-                t0 = time.perf_counter(); peer(); t_peer.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            mine()
+            t_mine.append(time.perf_counter() - t0)
+            history = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+            launches.append(len(history))
+            t_kernel.append(sum(e["execution_time"] for e in history) * 1e-3)
+            for name, (setup, fn) in peers.items():
+                if setup:
+                    setup()
+                t0 = time.perf_counter()
+                fn()
+                t_peer[name].append(time.perf_counter() - t0)
         m = float(np.median(t_mine)) * 1e3
-        p = float(np.median(t_peer)) * 1e3 if peer else float("nan")
-        rows.append((label, m, peer_name, p, m / p if peer else float("nan")))
+        medians = {name: float(np.median(t)) * 1e3 for name, t in t_peer.items()}
+        best = min(medians, key=medians.get) if medians else ""
+        results.append(dict(label=label, ours=m, kernel=float(np.median(t_kernel)) * 1e3,
+                            launches=int(np.median(launches)), peers=medians, best=best,
+                            ratio=m / medians[best] if best else float("nan"),
+                            bytes_ours=bytes_mine, bytes_peer=bytes_peer))
+    cv2.setNumThreads(threads_before)
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
 
     with tempfile.TemporaryDirectory() as home:
         cold = first_call(size, home)
         warm = first_call(size, home)
 
     import drjit
-    import mitsuba  # noqa: F401 - version only
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; Python "
-          f"{platform.python_version()}, Dr.Jit {drjit.__version__}, Pillow {PIL.__version__}, OpenCV {cv2.__version__}, "
-          f"numpy {np.__version__}; packet width {d._packet_width()}")
-    print(f"\n| {size}x{size} | ours (ms) | peer | peer (ms) | ours / peer |")
-    print("|---|---:|---|---:|---:|")
-    for label, m, peer_name, p, ratio in rows:
-        print(f"| {label} | {m:.2f} | {peer_name or '-'} | " + (f"{p:.2f} | {ratio:.2f} |" if peer_name else "- | - |"))
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.2f}; Python {platform.python_version()}, Dr.Jit {drjit.__version__}, "
+          f"Pillow {PIL.__version__}, OpenCV {cv2.__version__}, numpy {np.__version__}; Dr.Jit threads "
+          f"{dr.thread_count()}, packet width {d._packet_width()}; median of {repeats} interleaved repeats")
+    print(f"\n| {size}x{size} | ours (ms) | our kernel (ms) | launches | peer (faster setting) | peer (ms) "
+          f"| ours / peer | MB moved ours / peer |")
+    print("|---|---:|---:|---:|---|---:|---:|---:|")
+    for r in results:
+        peer = f"{r['best']} | {r['peers'][r['best']]:.2f} | {r['ratio']:.2f}" if r["best"] else "- | - | -"
+        moved = f"{r['bytes_ours'] / 1e6:.0f} / {r['bytes_peer'] / 1e6:.0f}" if r["bytes_ours"] else "-"
+        print(f"| {r['label']} | {r['ours']:.2f} | {r['kernel']:.2f} | {r['launches']} | {peer} | {moved} |")
+    print("\nall peer medians (ms): " + "; ".join(
+        f"{r['label']}: " + ", ".join(f"{k} {v:.2f}" for k, v in r["peers"].items()) for r in results if r["peers"]))
     print("\n| first call (ms) | cold cache | warm cache | steady |")
     print("|---|---:|---:|---:|")
     for name in cold:
         print(f"| {name} | {cold[name][0] * 1e3:.1f} | {warm[name][0] * 1e3:.1f} | {warm[name][1] * 1e3:.2f} |")
     if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "cold": cold, "warm": warm}, indent=1))
+        args.json.write_text(json.dumps({"rows": results, "cold": cold, "warm": warm}, indent=1))
     return 0
 
 

@@ -338,10 +338,13 @@ def _lanes() -> int:
 def _diffuse_core(values: Float, height: int, width: int, channels: int,
                   kernel: tuple[tuple[int, int, float], ...], serpentine: bool,
                   tables: tuple[np.ndarray, np.ndarray, np.ndarray], carry: bool = False,
-                  lanes: int | None = None) -> Float:
-    """Error diffusion of the flat (H, W, C) float32 ``values`` (already clipped); returns the output levels.
+                  lanes: int | None = None, clip: bool = False) -> Float:
+    """Error diffusion of the flat (H, W, C) ``values``; returns the output levels.
 
-    ``lanes``: rows processed together in one SIMD packet (default: :func:`_lanes`).
+    ``values``: evaluated float32 (already clipped, or raw with ``clip``: NaN -> 0 and the clip to
+    0..255 then happen on each value as the loop reads it, saving a pass over the image) or
+    uint8 (0..255, read as bytes). ``lanes``: rows processed together in one SIMD packet (default:
+    :func:`_lanes`).
     """
     plan = _schedule(kernel, serpentine, width, channels, _lanes() if lanes is None else lanes)
     rows, right, left, order, own_w = plan["rows"], plan["right"], plan["left"], plan["order"], plan["own"]
@@ -407,7 +410,8 @@ def _diffuse_core(values: Float, height: int, width: int, channels: int,
         valid = live & (x >= 0) & (x < W)
         px = dr.select(odd, W - 1 - x, x) if serpentine else x
         pixel = (y * W + px) * C + channel
-        v = Float64(dr.gather(Float, values, pixel, valid))
+        read = Float(dr.gather(type(values), values, pixel, valid))
+        v = Float64(_clipped(read) if clip else read)
         for dy, o, w in order:
             v = v + windows[rows.index(dy)][o - left[dy]] * w
         for dx, w in own_w:
@@ -455,17 +459,25 @@ def _diffuse(image: Any, kernel: DiffusionKernel, *, level: float, levels: int, 
     levels = _check_levels(levels)
     serpentine = _check_bool(serpentine, "serpentine")
     linear = _check_bool(linear, "linear")
-    tensor = as_tensor(image)
-    shape = tuple(tensor.shape)
+    clip = False
+    if _is_uint8(image) and not linear:  # bytes, widened as the loop reads them: no float32 copy
+        _check_shape(image.shape, "image", None, False)
+        shape = tuple(image.shape)
+        values = UInt8(np.ascontiguousarray(image).reshape(-1))
+    else:
+        tensor = as_tensor(image)
+        shape = tuple(tensor.shape)
+        values = tensor.array
+        if linear:
+            values = _srgb_decode_255(_clipped(values))
+        else:  # clipped in the diffusion loop itself: no separate pass over the image
+            clip = True
+    dr.eval(values)
     height, width = shape[0], shape[1]
     channels = shape[2] if len(shape) == 3 else 1
-    values = _clipped(tensor.array)
-    if linear:
-        values = _srgb_decode_255(values)
-    dr.eval(values)
     weights = tuple((dy, dx, n / kernel.divisor) for dy, dx, n in kernel.weights)
     out = _diffuse_core(values, height, width, channels, weights, serpentine,
-                        _quantiser(levels, level, linear), carry=carry)
+                        _quantiser(levels, level, linear), carry=carry, clip=clip)
     return TensorXf(out, shape)
 
 

@@ -187,3 +187,42 @@ def test_one_kernel_per_call_and_no_recompilation_across_sizes():
         assert len(launches) == 3 and all(e["cache_hit"] for e in launches)
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+# ----------------------------------------------------------------------------------------------
+# error diffusion reads its input in the loop (uint8 as bytes, float32 clipped on the fly)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (7, 1), (1, 9), (23, 37), (11, 17, 3)])
+def test_diffusion_uint8_input_equals_float_input(shape):
+    from imaging.dither import KERNELS, diffuse, error_diffusion, floyd_steinberg
+
+    image = np.random.default_rng(len(shape) * 100 + shape[0]).integers(0, 256, shape).astype(np.uint8)
+    as_float = image.astype(np.float32)
+    for name in KERNELS:
+        assert np.array_equal(np.asarray(diffuse(image, name)), np.asarray(diffuse(as_float, name))), name
+    assert np.array_equal(np.asarray(floyd_steinberg(image, serpentine=True)),
+                          np.asarray(floyd_steinberg(as_float, serpentine=True)))
+    assert np.array_equal(np.asarray(floyd_steinberg(image, levels=4)), np.asarray(floyd_steinberg(as_float, levels=4)))
+    assert np.array_equal(np.asarray(error_diffusion(image)), np.asarray(error_diffusion(as_float)))
+    # a non-contiguous uint8 view
+    view = image[::-1, ::2]
+    assert np.array_equal(np.asarray(floyd_steinberg(view)), np.asarray(floyd_steinberg(view.astype(np.float32))))
+
+
+def test_diffusion_is_one_kernel_launch():
+    from imaging.dither import floyd_steinberg
+
+    image = np.random.default_rng(4).uniform(-10, 300, (20, 30)).astype(np.float32)
+    tensor = as_tensor(image)
+    dr.eval(tensor)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for source in (tensor, image.clip(0, 255).astype(np.uint8)):
+            dr.eval(floyd_steinberg(source))
+            dr.kernel_history()
+            dr.eval(floyd_steinberg(source))
+            launches = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
+            assert len(launches) == 1
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
