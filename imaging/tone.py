@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Float, Float64, UInt32, UInt64
+from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
 from imaging._array import TensorXf, _check_shape, as_tensor
 from imaging.colour import REC709_LUMINANCE_WEIGHTS, _encode, _hsv_from_rgb, _rgb_from_hsv
@@ -123,20 +123,24 @@ def _is_uint8(image: Any) -> bool:
 
 
 def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
-    """Per-pixel UInt32 values of a uint8 image, read from packed 32-bit words without conversion.
+    """Per-pixel UInt32 values of a uint8 image, read in place (no float conversion, no gather).
 
-    Returns ``(values, shape, words)``; ``words`` is the packed UInt32 view (or None when the
-    image cannot be viewed as whole little-endian words).
+    The bytes are shared with Dr.Jit as a ``UInt8`` array (zero copy for C-contiguous input)
+    and widened inside the consuming kernel, so reading them costs no pass of its own.
+    Returns ``(values, shape, words)``; ``words`` is the same memory viewed as packed
+    little-endian UInt32 words (four pixels each, for the pair histogram), or None when the
+    image cannot be viewed as whole aligned words.
     """
     _check_shape(image.shape, name, None, False)
     flat = np.ascontiguousarray(image).reshape(-1)
-    n = flat.size
-    if n % 4 == 0 and flat.ctypes.data % 4 == 0 and sys.byteorder == "little":
-        words = UInt32(flat.view(np.uint32))
-        i = dr.arange(UInt32, n)
-        values = (dr.gather(UInt32, words, i >> 2) >> ((i & 3) << 3)) & 0xFF
-        return values, tuple(image.shape), words
-    return UInt32(flat.astype(np.uint32)), tuple(image.shape), None
+    return UInt32(UInt8(flat)), tuple(image.shape), _words(flat)
+
+
+def _words(flat: np.ndarray) -> UInt32 | None:
+    """``flat`` (contiguous uint8) viewed as UInt32 words without a copy, or None."""
+    if flat.size % 4 == 0 and flat.ctypes.data % 4 == 0 and sys.byteorder == "little":
+        return UInt32(flat.view(np.uint32))
+    return None
 
 
 def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
@@ -146,6 +150,14 @@ def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
     dr.scatter_add(count, 1, UInt32(0), active=bad)
     clean = dr.select(bad, dr.select(values > 0, white, 0.0), values)
     return clean, count
+
+
+def _done(result: TensorXf) -> TensorXf:
+    """Evaluate ``result`` and wait for it: uint8 input is read in place, so the kernel must have
+    finished before the caller may change or free the array."""
+    dr.eval(result)
+    dr.sync_thread()
+    return result
 
 
 def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
@@ -163,9 +175,7 @@ def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
     if _is_uint8(image):
         table = function(dr.arange(Float, 256))
         values, shape, _ = _u8_indices(image)
-        result = TensorXf(dr.gather(Float, table, values), shape)
-        dr.eval(result)
-        return result
+        return _done(TensorXf(dr.gather(Float, table, values), shape))
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
     return _finish(TensorXf(function(clean), tensor.shape), count, where)
@@ -394,9 +404,7 @@ def lut(image: Any, table: Any) -> TensorXf:
         channels = shape[2] if len(shape) == 3 else 1
         table, width = _table(table, channels)
         index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
-        result = TensorXf(dr.gather(Float, table, index), shape)
-        dr.eval(result)
-        return result
+        return _done(TensorXf(dr.gather(Float, table, index), shape))
     tensor = as_tensor(image)
     channels = tensor.shape[2] if tensor.ndim == 3 else 1
     table, width = _table(table, channels)
@@ -406,37 +414,36 @@ def lut(image: Any, table: Any) -> TensorXf:
     return _finish(TensorXf(dr.gather(Float, table, index), tensor.shape), count, "lut")
 
 
-def _histogram_of(index_of: Callable[[UInt32], UInt32], n: int, levels: int,
-                  words: UInt32 | None = None) -> UInt32:
-    """Histogram (``levels`` bins) of ``index_of(pixel)`` over ``n`` pixels via ``dr.scatter_add``.
+#: Pixels are counted in pairs: two 8-bit bins make one index of a 256 x 256 table.
+_PAIR_LEVELS = 256
 
-    Pixels are counted in pairs into a levels^2 table (fewer colliding atomic
-    additions than ``levels`` bins), then the pair table is summed both ways.
+
+def _histogram_of(bins: UInt8 | UInt32, words: UInt32 | None, tail: UInt32 | None, levels: int) -> UInt32:
+    """Histogram (``levels`` bins) of the evaluated per-pixel ``bins`` via ``dr.scatter_add``.
+
+    For 8-bit bins (``levels`` <= 256) given as packed 32-bit ``words`` (four bins
+    each; ``tail`` the 0..3 bins after the last whole word), the bins are counted in
+    pairs: bytes (0, 1) and (2, 3) of each word index a 65,536-entry table, so each
+    lane makes 2 atomic additions for 4 pixels, spread over many more entries than
+    ``levels`` (fewer collisions); the table is then summed both ways. Otherwise
+    one addition per pixel into ``levels`` bins.
     """
-    if levels > 256:
+    if words is None:
         hist = dr.zeros(UInt32, levels)
-        dr.scatter_add(hist, 1, index_of(dr.arange(UInt32, n)))
+        dr.scatter_add(hist, 1, UInt32(bins))
         return hist
-    pairs = levels * levels
-    table = dr.zeros(UInt32, pairs + levels)
-    if words is not None:  # packed uint8, levels == 256: bytes (0,1) and (2,3) of each word
-        dr.scatter_add(table, 1, words & 0xFFFF)
-        dr.scatter_add(table, 1, words >> 16)
-        quads = n // 4
-    else:
-        quads = n // 4
-        if quads:
-            j = dr.arange(UInt32, quads) * 4
-            dr.scatter_add(table, 1, index_of(j) + levels * index_of(j + 1))
-            dr.scatter_add(table, 1, index_of(j + 2) + levels * index_of(j + 3))
-    rest = n - 4 * quads
-    if rest:
-        dr.scatter_add(table, 1, pairs + index_of(dr.arange(UInt32, rest) + 4 * quads))
-    bins = dr.arange(UInt32, levels)
-    by_high = dr.block_sum(dr.gather(UInt32, table, dr.arange(UInt32, pairs)), levels)
-    transposed = dr.arange(UInt32, pairs)
-    by_low = dr.block_sum(dr.gather(UInt32, table, (transposed % levels) * levels + transposed // levels), levels)
-    return by_high + by_low + dr.gather(UInt32, table, pairs + bins)
+    side = _PAIR_LEVELS
+    pairs = side * side
+    table = dr.zeros(UInt32, pairs + side)
+    dr.scatter_add(table, 1, words & 0xFFFF)
+    dr.scatter_add(table, 1, words >> 16)
+    if tail is not None:
+        dr.scatter_add(table, 1, pairs + tail)
+    entry = dr.arange(UInt32, pairs)
+    by_low = dr.block_sum(dr.gather(UInt32, table, entry), side)
+    by_high = dr.block_sum(dr.gather(UInt32, table, (entry % side) * side + entry // side), side)
+    hist = by_low + by_high + dr.gather(UInt32, table, pairs + dr.arange(UInt32, side))
+    return dr.gather(UInt32, hist, dr.arange(UInt32, levels)) if levels < side else hist
 
 
 def _equalization_table(hist: UInt32, n: int, levels: int, max_value: float) -> Float:
@@ -483,37 +490,46 @@ def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.
     """
     levels = _levels(levels, high=65536)
     max_value = _positive(max_value, "max_value")
-    index_of, n, words, _, _ = _bin_indices(image, levels, max_value)
-    hist = _histogram_of(index_of, n, levels, words)
-    return np.asarray(hist).astype(np.int64)
+    bins, words, tail, _, _ = _bins(image, levels, max_value)
+    return np.asarray(_histogram_of(bins, words, tail, levels)).astype(np.int64)
 
 
-def _bin_indices(image: Any, levels: int, max_value: float):
-    """(index_of(pixel) -> bin, pixel count, packed words or None, shape, non-finite counter)."""
+def _packed(flat: np.ndarray) -> tuple[UInt32 | None, UInt32 | None]:
+    """Contiguous uint8 ``flat`` as (whole UInt32 words, UInt32 tail of 0..3 bins), both zero copy.
+
+    (None, None) when the bytes cannot be viewed as aligned little-endian words.
+    """
+    whole = flat.size - flat.size % 4
+    if whole == 0 or flat.ctypes.data % 4 or sys.byteorder != "little":
+        return None, None
+    words = UInt32(flat[:whole].view(np.uint32))
+    tail = UInt32(flat[whole:].astype(np.uint32)) if whole < flat.size else None
+    return words, tail
+
+
+def _bins(image: Any, levels: int, max_value: float):
+    """Per-pixel bins, evaluated: (bins, packed words or None, tail or None, shape, non-finite counter).
+
+    Bin of I: clip(round(I (levels - 1) / max_value), 0, levels - 1). ``uint8`` input with
+    levels = 256 and max_value = 255 is its own bins (shared, no pass). Otherwise one
+    pass computes them, as ``UInt8`` for levels <= 256 (a quarter of the bytes of float,
+    and packed words for the pair histogram) or ``UInt32``.
+    """
     if _is_uint8(image) and levels == 256 and max_value == 255.0:
-        values, shape, words = _u8_indices(image)
-        source = values
-
-        def index_of(i: UInt32) -> UInt32:
-            return dr.gather(UInt32, source, i)
-
-        if words is None:
-            return index_of, dr.width(values), None, shape, None
-        # Read bytes straight from the packed words.
-        def index_packed(i: UInt32) -> UInt32:
-            return (dr.gather(UInt32, words, i >> 2) >> ((i & 3) << 3)) & 0xFF
-
-        return index_packed, dr.width(values), words, shape, None
+        flat = np.ascontiguousarray(image).reshape(-1)
+        words, tail = _packed(flat)
+        return UInt8(flat), words, tail, tuple(image.shape), None
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
-    dr.eval(clean, count)
     scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
-
-    def index_float(i: UInt32) -> UInt32:
-        x = dr.gather(Float, clean, i)
-        return UInt32(dr.clip(dr.round(x * scale), 0.0, last))
-
-    return index_float, dr.width(clean), None, tuple(tensor.shape), count
+    index = UInt32(dr.clip(dr.round(clean * scale), 0.0, last))
+    if levels > _PAIR_LEVELS:
+        dr.eval(index, count)
+        return index, None, None, tuple(tensor.shape), count
+    bins = UInt8(index)
+    dr.eval(bins, count)
+    words, tail = _packed(np.asarray(bins))
+    return bins, words, tail, tuple(tensor.shape), count
 
 
 def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf:
@@ -568,13 +584,12 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
             return _equalize_colour(tensor, levels, max_value)
     else:
         _check_shape(image.shape, "image", (1,), False)
-    index_of, n, words, shape, count = _bin_indices(image, levels, max_value)
-    hist = _histogram_of(index_of, n, levels, words)
-    table = _equalization_table(hist, n, levels, max_value)
-    result = TensorXf(dr.gather(Float, table, index_of(dr.arange(UInt32, n))), shape)
+    bins, words, tail, shape, count = _bins(image, levels, max_value)
+    n = dr.width(bins)
+    table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
+    result = TensorXf(dr.gather(Float, table, UInt32(bins)), shape)
     if count is None:
-        dr.eval(result)
-        return result
+        return _done(result)
     return _finish(result, count, "equalize_histogram")
 
 
@@ -587,16 +602,14 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorX
     channels = [dr.clip(dr.select(dr.isfinite(c), c, dr.select(c > 0, top, 0.0)), 0.0, top)
                 for c in (rgb.x, rgb.y, rgb.z)]
     h, s, v = _hsv_from_rgb(*channels)
-    dr.eval(h, s, v, count)
-    n = dr.width(v)
     scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
-
-    def index_of(i: UInt32) -> UInt32:
-        return UInt32(dr.clip(dr.round(dr.gather(Float, v, i) * scale), 0.0, last))
-
-    table = _equalization_table(_histogram_of(index_of, n, levels), n, levels, max_value)
-    v_new = dr.gather(Float, table, UInt32(dr.clip(dr.round(v * scale), 0.0, last)))
-    r, g, b = _rgb_from_hsv(h, s, v_new)
+    index = UInt32(dr.clip(dr.round(v * scale), 0.0, last))
+    bins = UInt8(index) if levels <= _PAIR_LEVELS else index
+    dr.eval(h, s, bins, count)  # one pass: V itself is not kept, only its bin
+    words, tail = _packed(np.asarray(bins)) if levels <= _PAIR_LEVELS else (None, None)
+    n = dr.width(bins)
+    table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
+    r, g, b = _rgb_from_hsv(h, s, dr.gather(Float, table, UInt32(bins)))
     return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
 
 

@@ -394,3 +394,85 @@ def test_dynamic_range():
     assert dynamic_range(np.array([[np.nan, 1.0, np.inf, 4.0]])) == 3
     with pytest.raises(ValueError, match="finite"):
         dynamic_range(np.array([[np.nan]]))
+
+
+# ------------------------------------------------------------------------------------------ fast paths (speed work)
+
+@pytest.mark.parametrize("size", [1, 2, 3, 4, 5, 6, 7, 8, 13])
+def test_equalize_and_histogram_every_word_tail(size):
+    """Packed words plus a tail of 0..3 bins (and images smaller than one word) count every pixel."""
+    image = RNG.integers(0, 256, (1, size), dtype=np.uint8)
+    np.testing.assert_array_equal(histogram(image), np.bincount(image.ravel(), minlength=256))
+    np.testing.assert_array_equal(a(equalize_histogram(image)), spec_equalize(image, 256))
+    x = image.astype(np.float32) * (15 / 255)          # float input, 16 levels: UInt8 bins in one pass
+    bins = np.clip(np.round(x * 255 / 255 * (255 / 15) * 15 / 255), 0, 15).astype(np.int64)
+    np.testing.assert_allclose(a(equalize_histogram(x * 17, 16)), spec_equalize(bins, 16) * 17, rtol=1e-6)
+
+
+def test_uint8_views_misaligned_and_strided():
+    """uint8 views that are not whole aligned words, or not contiguous, give the same results."""
+    buffer = RNG.integers(0, 256, 1 + 48 * 32, dtype=np.uint8)
+    shifted = buffer[1:].reshape(48, 32)                 # data pointer not a multiple of 4
+    assert shifted.ctypes.data % 4 != 0
+    transposed = GREY8_PACKED.T                          # not C-contiguous
+    table = (np.arange(256) * 7 % 256).astype(np.float32)
+    for image in (shifted, transposed):
+        np.testing.assert_array_equal(histogram(image), np.bincount(image.ravel(), minlength=256))
+        np.testing.assert_array_equal(a(equalize_histogram(image)), spec_equalize(image, 256))
+        np.testing.assert_array_equal(a(lut(image, table)), table[image])
+        np.testing.assert_array_equal(a(gamma(image, 2.2)), a(gamma(image.astype(np.float32), 2.2)))
+
+
+def test_uint8_result_does_not_alias_input():
+    """The uint8 bytes are read in place; the result is new memory, evaluated before returning."""
+    image = GREY8_PACKED.copy()
+    table = (255 - np.arange(256)).astype(np.float32)
+    result, equalized = lut(image, table), equalize_histogram(image)
+    expected, expected_eq = table[image], spec_equalize(image, 256)
+    image[:] = 0
+    np.testing.assert_array_equal(a(result), expected)
+    np.testing.assert_array_equal(a(equalized), expected_eq)
+
+
+def test_equalize_many_levels_and_colour_odd_sizes():
+    """levels > 256 (UInt32 bins, direct histogram) and colour images of odd pixel counts."""
+    x = RNG.random((9, 11), dtype=np.float32) * 255
+    bins = np.clip(np.round(x * 299 / 255.0), 0, 299).astype(np.int64)
+    np.testing.assert_allclose(a(equalize_histogram(x, 300)), spec_equalize(bins, 300) * 255 / 299, rtol=1e-6)
+    image = RNG.integers(0, 256, (5, 7, 3), dtype=np.uint8).astype(np.float32)
+    hsv = cv2.cvtColor(image / 255.0, cv2.COLOR_RGB2HSV)
+    v = np.round(hsv[..., 2] * 255).astype(np.int64)
+    hsv[..., 2] = spec_equalize(v, 256) / 255.0
+    np.testing.assert_allclose(a(equalize_histogram(image)), cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB) * 255, atol=2e-3)
+
+
+def _kernels(function):
+    """Run ``function`` with Dr.Jit's kernel history on; return the JIT kernel launches."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        function()
+        history = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return [k for k in history if k["type"] == dr.KernelType.JIT]
+
+
+def test_uint8_equalize_is_two_passes_and_nothing_recompiles():
+    """Histogram pass (n/4 lanes) + table pass (n lanes); new arguments reuse the compiled kernels."""
+    image = RNG.integers(0, 256, (64, 96), dtype=np.uint8)
+    equalize_histogram(image)
+    kernels = _kernels(lambda: a(equalize_histogram(image)))
+    per_pixel = sorted(k["size"] for k in kernels if k["size"] in (image.size // 4, image.size))
+    assert per_pixel == [image.size // 4, image.size]
+    assert all(k["size"] <= 65536 for k in kernels if k["size"] not in per_pixel)  # 256 x 256 pair table
+    other = RNG.integers(0, 256, (64, 96), dtype=np.uint8)
+    assert all(k["cache_hit"] for k in _kernels(lambda: a(equalize_histogram(other))))
+    grey = RNG.random((32, 32), dtype=np.float32) * 255
+    gamma(grey, 2.2), contrast_stretch(grey, 10, 20, 200, 210), lut(image, np.arange(256))
+    for call in (lambda: gamma(grey, 0.7), lambda: contrast_stretch(grey, 30, 5, 99, 250),
+                 lambda: lut(image, np.arange(256)[::-1]), lambda: gamma(image, 1.9)):
+        kernels = _kernels(lambda: a(call()))
+        assert kernels and all(k["cache_hit"] for k in kernels)
