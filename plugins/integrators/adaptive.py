@@ -30,6 +30,9 @@ WEIGHTINGS = ("area", "equal")
 #: samples (depth 12: 16.8 million), and lattice coordinates must fit 32 bits.
 MAX_DEPTH_LIMIT = 12
 
+#: Most rays in one batch (lane indices are 32-bit).
+_MAX_LANES = 1 << 31
+
 #: sRGB transfer function (IEC 61966-2-1:1999): linear segment below this value ...
 SRGB_LINEAR_LIMIT = 0.0031308
 #: ... with this slope, and 1.055 v^(1/2.4) - 0.055 above it.
@@ -353,11 +356,12 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         return image
 
     # -- tracing -------------------------------------------------------------------------
-    def _trace(self, scene, sensor, sampler, position, size, diff_scale):
+    def _trace(self, scene, sensor, sampler, position, size, diff_scale, display=False):
         """Radiance of the rays through film ``position`` (local pixel units), evaluated.
 
         Returns ``(channels, valid)``: ``channels`` = [R, G, B, alpha, nested AOVs...]
-        and ``valid`` = every channel finite.
+        (then, with ``display``, the three display values of :meth:`_display`, computed
+        once per sample in the same kernel) and ``valid`` = every channel finite.
         """
         begin = time.perf_counter()
         sample2 = position * dr.rcp(mi.ScalarVector2f(size))
@@ -371,6 +375,9 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         L = L * weight
         channels = [L.x, L.y, L.z, dr.select(valid, 1.0, 0.0)] + [mi.Float(a) for a in aux]
         finite = _finite(channels)
+        if display:
+            shown = self._display(channels)
+            channels = channels + [shown.x, shown.y, shown.z]
         dr.eval(channels, finite)
         dr.sync_thread()
         self.stats["trace_seconds"] += time.perf_counter() - begin
@@ -391,184 +398,253 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         return dr.select(_finite(channels), shown, dr.nan)
 
     # -- range criterion ------------------------------------------------------------------
+    #
+    # Kernel launches per refinement level (every scalar that changes per level or per
+    # call is opaque, and no bound is a Python literal, so nothing recompiles between
+    # levels, thresholds, seeds or square counts):
+    #   1. the level's squares, gathered from their parents through the compacted list,
+    #      with their right / lower neighbours (O(1) look-ups in the parent level's
+    #      prefix sum: a neighbour is a sibling or a child of the parent's neighbour)
+    #      and their point counts;
+    #   2. an inclusive prefix sum of the counts (one host read: the ray batch size);
+    #   3. the ray batch: each lane finds its square by binary search in that prefix sum
+    #      (a symbolic loop), places its point and runs the nested integrator;
+    #   4. per square: its five new samples, what the split adds to its pixel, the
+    #      sub-squares to split next (flags), and the slots of its points;
+    #   5. per run of squares in one pixel: the sum of those additions (one lane per
+    #      pixel, in order: deterministic), added into the pixel sums;
+    #   6. a prefix sum of the sub-square flags (one host read: the next level's size)
+    #      and the compacted list (a scatter).
     def _render_range(self, scene, sensor, seed, width, height):
         size = (width, height)
-        threshold = dr.opaque(mi.Float, self.threshold)
+        m = self.min_depth
+        side = 1 << m
+        stride, rows = (width << m) + 1, (height << m) + 1
+        if stride * rows >= _MAX_LANES:
+            raise ValueError(f"min_depth: a {width} x {height} film split to depth {m} needs "
+                             f"{stride * rows} lattice rays, more than {_MAX_LANES}")
         n_pixels = width * height
+        threshold = dr.opaque(mi.Float, self.threshold)
+        o_width = dr.opaque(mi.UInt32, width)
+        o_stride = dr.opaque(mi.UInt32, stride)
+        o_shift = dr.opaque(mi.UInt32, m)
+        o_side = dr.opaque(mi.UInt32, side)
+        area = self.weighting == "area"
 
-        # Level 0: the (W + 1) x (H + 1) pixel corners, one batch.
-        stride = width + 1
-        lattice = dr.arange(mi.UInt32, stride * (height + 1))
-        ly = lattice // stride
-        lx = lattice - ly * stride
-        sampler = self._sampler(sensor, seed, 0, dr.width(lattice))
-        corners, finite = self._trace(scene, sensor, sampler, mi.Point2f(mi.Float(lx), mi.Float(ly)),
-                                      size, 1.0)
-        del sampler, lattice, lx, ly
+        # Batch 0: the uniform lattice of level min_depth (min_depth 0: the pixel corners,
+        # (W + 1) x (H + 1) rays), step h = 2^-min_depth pixels.
+        ly, lx = _divmod(dr.arange(mi.UInt32, stride * rows), stride)
+        step = dr.opaque(mi.Float, 0.5 ** m)
+        sampler = self._sampler(sensor, seed, 0, stride * rows)
+        lattice, finite = self._trace(scene, sensor, sampler,
+                                      mi.Point2f(mi.Float(lx) * step, mi.Float(ly) * step), size, 0.5 ** m,
+                                      display=True)
+        nc = len(lattice) - 3  # the last three: display values
+        del sampler, lx, ly
 
-        pixel = dr.arange(mi.UInt32, n_pixels)
-        py = pixel // width
-        px = pixel - py * width
-        c00 = px + py * stride
-        ids = (c00, c00 + 1, c00 + stride, c00 + stride + 1)
-        quad = [[dr.gather(mi.Float, channel, index) for channel in corners] for index in ids]
-        # Each corner weighs 1/4 of the pixel (area) or 1 (equal): the same mean.
-        sums = [mi.Float(0.0) for _ in corners]
-        valid_n = mi.Float(0.0)
-        for values in quad:
-            ok = _finite(values)
-            for c, value in enumerate(values):
-                sums[c] += dr.select(ok, value, 0.0)
-            valid_n += dr.select(ok, 1.0, 0.0)
-        count = dr.full(mi.Float, 4.0, n_pixels)
+        # Pixel sums over the (2^m + 1)^2 lattice points of each pixel: trapezoidal
+        # weights w(u) w(v) h^2 (w = 1/2 on the pixel border, 1 inside) for ``area``,
+        # 1 for ``equal``. One lane per pixel, a symbolic loop over its points.
+        py, px = _divmod(dr.arange(mi.UInt32, n_pixels), width)
+        base = (py << o_shift) * o_stride + (px << o_shift)
+        h2 = dr.opaque(mi.Float, 0.25 ** m)
+
+        def cond(u, v, *acc):
+            return v <= o_side
+
+        def body(u, v, *acc):
+            at = base + v * o_stride + u
+            ok = dr.gather(mi.Bool, finite, at)
+            if area:
+                weight = (dr.select((u == 0) | (u == o_side), 0.5, 1.0)
+                          * dr.select((v == 0) | (v == o_side), 0.5, 1.0) * h2)
+            else:
+                weight = mi.Float(1.0)
+            updated = [a + dr.select(ok, weight * dr.gather(mi.Float, channel, at, ok), 0.0)
+                       for a, channel in zip(acc[:-1], lattice[:nc])]
+            wrap = u == o_side
+            return (dr.select(wrap, 0, u + 1), dr.select(wrap, v + 1, v), *updated,
+                    acc[-1] + dr.select(ok, weight, 0.0))
+
+        zero = dr.zeros(mi.UInt32, n_pixels)
+        state = dr.while_loop(state=(zero, zero, *[dr.zeros(mi.Float, n_pixels) for _ in range(nc + 1)]),
+                              cond=cond, body=body, label="adaptive_lattice_sum")
+        sums, valid_n = list(state[2:-1]), state[-1]
+        count = dr.full(mi.Float, float((side + 1) ** 2), n_pixels)
         dr.eval(sums, valid_n, count)
-        if self.max_depth == 0:
+        del state, py, px, base, zero
+        if m >= self.max_depth:
             return sums, valid_n, count
-        if self.weighting == "area":
-            sums = [s * 0.25 for s in sums]
-            valid_n = valid_n * 0.25
-            dr.eval(sums, valid_n)
 
-        active = _spread([self._display(values) for values in quad]) > threshold
-        if self.min_depth > 0:
-            active |= True
-        sel = dr.compress(active)
-        i, j = dr.gather(mi.UInt32, px, sel), dr.gather(mi.UInt32, py, sel)
-        key = mi.UInt64(dr.gather(mi.UInt32, pixel, sel))
-        quad = [[dr.gather(mi.Float, value, sel) for value in values] for values in quad]
-        dr.eval(i, j, key, quad)
-        del sel, active, corners, finite, pixel, px, py, c00, ids
+        # The squares of level m, lane = pixel * 4^m + Morton code inside the pixel (so
+        # the order is by pixel, and the four children of a square follow each other).
+        local_mask = dr.opaque(mi.UInt32, side * side - 1)
+        two_m = dr.opaque(mi.UInt32, 2 * m)
+        cells = n_pixels << (2 * m)
 
-        for level in range(self.max_depth):
-            if dr.width(key) == 0:
+        def lattice_square(lane):
+            sy, sx = _divmod(lane >> two_m, width)
+            i = (sx << o_shift) | _compact1by1(lane & local_mask)
+            j = (sy << o_shift) | _compact1by1((lane & local_mask) >> 1)
+            c00 = j * o_stride + i
+            corners = (c00, c00 + 1, c00 + o_stride, c00 + o_stride + 1)
+            return i, j, [[dr.gather(mi.Float, channel, at) for channel in lattice] for at in corners]
+
+        def lane_of(i, j):  # the inverse of lattice_square
+            pixel = (j >> o_shift) * o_width + (i >> o_shift)
+            return (pixel << two_m) | _part1by1(i & local_mask) | (_part1by1(j & local_mask) << 1)
+
+        quad = lattice_square(dr.arange(mi.UInt32, cells))[2]
+        flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)
+        sel, pos = _compact(flags)
+        if sel is None:
+            return sums, valid_n, count
+        i, j, quad = lattice_square(sel)
+        cells_x = dr.opaque(mi.UInt32, width << m)
+        cells_y = dr.opaque(mi.UInt32, height << m)
+        inside_r, inside_t = i + 1 < cells_x, j + 1 < cells_y
+        lane_r = lane_of(dr.select(inside_r, i + 1, i), j)
+        lane_t = lane_of(i, dr.select(inside_t, j + 1, j))
+        found_r = inside_r & (dr.gather(mi.UInt32, flags, lane_r) != 0)
+        found_t = inside_t & (dr.gather(mi.UInt32, flags, lane_t) != 0)
+        square = (i, j, quad, found_r, dr.gather(mi.UInt32, pos, lane_r), found_t, dr.gather(mi.UInt32, pos, lane_t))
+        del quad, flags, pos, sel
+        for level in range(m, self.max_depth):
+            square = self._refine(scene, sensor, seed, size, level, square, sums, valid_n, count, threshold, nc)
+            if square is None:
                 break
-            i, j, key, quad = self._refine(scene, sensor, seed, size, level, i, j, key, quad,
-                                           sums, valid_n, count, threshold)
         return sums, valid_n, count
 
-    def _refine(self, scene, sensor, seed, size, level, i, j, key, quad, sums, valid_n, count,
-                threshold):
-        """Split the ``n`` squares of ``level`` (coords ``i, j``, sorted ``key``, corner
-        channels ``quad``): trace their new points, update the pixel sums, and return the
-        sub-squares that must be split at the next level."""
+    def _refine(self, scene, sensor, seed, size, level, square, sums, valid_n, count, threshold, nc):
+        """Split the ``n`` squares of ``level`` and add what that changes to the pixel sums.
+
+        ``square`` = (``i, j``: coordinates on the level's grid, ``quad``: channels of the
+        four corners, then the right / lower neighbours split at the same level: found
+        flags and indices), unevaluated gathers in the key order (pixel, then Morton code
+        inside it). Returns the same for the sub-squares to split at the next level, or
+        None when there are none.
+        """
         width, height = size
-        n = dr.width(key)
+        i, j, quad, found_r, index_r, found_t, index_t = square
+        o_width = dr.opaque(mi.UInt32, width)
         shift = dr.opaque(mi.UInt32, level)
-        cells_x = dr.opaque(mi.UInt32, width << level)
-        cells_y = dr.opaque(mi.UInt32, height << level)
+        last_level = level + 1 >= self.max_depth
 
-        # Neighbours being split at the same level: the square to the right (x + 1) and
-        # below (y + 1) own the midpoint of the shared edge; found by binary search in the
-        # sorted keys (pixel index, then Morton order inside the pixel).
-        def lookup(ni, nj, inside):
-            target = _square_key(ni, nj, shift, width)
-            index = mi.UInt32(dr.binary_search(0, n - 1, lambda k: dr.gather(mi.UInt64, key, k) < target))
-            found = inside & (dr.gather(mi.UInt64, key, index) == target)
-            return found, index
+        # 1. The squares, their pixels and point counts: a neighbour being split at the
+        # same level owns the midpoint of the shared edge (its k = 1 or k = 0 point).
+        owned_r, owned_t = ~found_r, ~found_t
+        points_of = 3 + dr.select(owned_r, mi.UInt32(1), 0) + dr.select(owned_t, mi.UInt32(1), 0)
+        pixel = (j >> shift) * o_width + (i >> shift)
+        dr.eval(i, j, pixel, quad, found_r, index_r, found_t, index_t, points_of)
+        n = dr.width(pixel)
+        o_n = dr.opaque(mi.UInt32, n)
 
-        found_r, index_r = lookup(i + 1, j, i + 1 < cells_x)
-        found_t, index_t = lookup(i, j + 1, j + 1 < cells_y)
-        same_r = ((i + 1) >> shift) == (i >> shift)
-        same_t = ((j + 1) >> shift) == (j >> shift)
-        dr.eval(found_r, index_r, found_t, index_t, same_r, same_t)
+        # 2. Where each square's own points go in the ray batch.
+        end = dr.cumsum(points_of)
+        total = int(end[n - 1])
+        start = end - points_of
 
-        # Lane 5 s + k: new point k of square s. Traced unless a neighbour owns it.
-        lane = dr.arange(mi.UInt32, 5 * n)
-        s = lane // 5
-        k = lane - 5 * s
-        owned_r = ~dr.gather(mi.Bool, found_r, s)
-        owned_t = ~dr.gather(mi.Bool, found_t, s)
-        traced = (k < 3) | ((k == 3) & owned_r) | ((k == 4) & owned_t)
-        slot = dr.prefix_sum(dr.select(traced, mi.UInt32(1), mi.UInt32(0)))  # exclusive
-        dr.eval(traced, slot)
-        # The slot of a shared point is the owning neighbour's (its k = 1 or k = 0 point).
-        right = k == 3
-        owner = dr.select(right, dr.gather(mi.UInt32, index_r, s), dr.gather(mi.UInt32, index_t, s))
-        slot = dr.select(traced, slot, dr.gather(mi.UInt32, slot, 5 * owner + dr.select(right, 1, 0), ~traced))
-        dr.eval(slot)
-        del owner, right
-
-        # Trace the owned points: one batch for the whole level.
-        which = dr.compress(traced)
-        ws = which // 5
-        wk = which - 5 * ws
-        dx = dr.gather(mi.UInt32, mi.UInt32(_NEW_DX), wk)
-        dy = dr.gather(mi.UInt32, mi.UInt32(_NEW_DY), wk)
+        # 3. The ray batch: lane t belongs to the first square whose range ends after t.
+        lane = dr.arange(mi.UInt32, total)
+        s = _search(lambda k: dr.gather(mi.UInt32, end, k) <= lane, o_n, total)
+        k = lane - dr.gather(mi.UInt32, start, s)
+        k = dr.select((k == 3) & dr.gather(mi.Bool, found_r, s), mi.UInt32(4), k)
+        dx = dr.gather(mi.UInt32, mi.UInt32(_NEW_DX), k)
+        dy = dr.gather(mi.UInt32, mi.UInt32(_NEW_DY), k)
         step = dr.opaque(mi.Float, 0.5 ** (level + 1))
-        gx = 2 * dr.gather(mi.UInt32, i, ws) + dx
-        gy = 2 * dr.gather(mi.UInt32, j, ws) + dy
+        gx = 2 * dr.gather(mi.UInt32, i, s) + dx
+        gy = 2 * dr.gather(mi.UInt32, j, s) + dy
         position = mi.Point2f(mi.Float(gx) * step, mi.Float(gy) * step)
-        sampler = self._sampler(sensor, seed, level + 1, dr.width(which))
-        points, finite = self._trace(scene, sensor, sampler, position, size, 0.5 ** (level + 1))
-        del sampler, which, ws, wk, dx, dy, gx, gy, position
+        sampler = self._sampler(sensor, seed, level + 1, total)
+        points, finite = self._trace(scene, sensor, sampler, position, size, 0.5 ** (level + 1), display=True)
+        del sampler, lane, s, k, dx, dy, gx, gy, position
 
-        # What the split adds to its pixel, per square (one lane each, so the sums are
-        # deterministic: no floating-point atomics whose order varies between runs).
+        # 4. Per square: the slots of its five new points, what the split adds, the
+        # sub-squares to split next.
+        slots = [start, start + 1, start + 2,
+                 dr.select(owned_r, start + 3, dr.gather(mi.UInt32, start, index_r, found_r) + 1),
+                 dr.select(owned_t, start + 3 + dr.select(owned_r, mi.UInt32(1), 0),
+                           dr.gather(mi.UInt32, start, index_t, found_t))]
+        new = [[dr.gather(mi.Float, channel, slot) for channel in points] for slot in slots]
+        ok_new = [dr.gather(mi.Bool, finite, slot) for slot in slots]
         # Sample count: each distinct position once per pixel. A point on the edge shared
         # with a split neighbour in the same pixel is counted by the neighbour (as its
         # k = 0 / 1 point); across a pixel border both pixels count it.
-        distinct = [True, True, True, ~found_r | ~same_r, ~found_t | ~same_t]
+        same_r = ((i + 1) >> shift) == (i >> shift)
+        same_t = ((j + 1) >> shift) == (j >> shift)
+        distinct = [True, True, True, owned_r | ~same_r, owned_t | ~same_t]
         area = dr.opaque(mi.Float, 0.25 ** level)
-        deltas = [mi.Float(0.0) for _ in points]
+        deltas = [mi.Float(0.0) for _ in range(nc)]
         weight_sum = mi.Float(0.0)
-        new_count = mi.Float(3.0) + dr.select(distinct[3], 1.0, 0.0) + dr.select(distinct[4], 1.0, 0.0)
-        base = 5 * dr.arange(mi.UInt32, n)
         for k in range(5):
-            index = dr.gather(mi.UInt32, slot, base + k)
-            ok = dr.gather(mi.Bool, finite, index)
+            ok = ok_new[k]
             if self.weighting == "equal":
                 ok &= distinct[k]
                 weight = mi.Float(1.0)
             else:  # area: edge midpoints gain A/8, the centre A/4 (A: the square's area) ...
                 weight = (0.25 if k == 2 else 0.125) * area
-            for c, channel in enumerate(points):
-                deltas[c] += dr.select(ok, weight * dr.gather(mi.Float, channel, index), 0.0)
+            for c in range(nc):
+                deltas[c] += dr.select(ok, weight * new[k][c], 0.0)
             weight_sum += dr.select(ok, weight, 0.0)
         if self.weighting == "area":  # ... and each corner goes from A/4 to A/16.
             minus = -3.0 / 16.0 * area
             for values in quad:
-                good = _finite(values)
-                for c, value in enumerate(values):
-                    deltas[c] += dr.select(good, minus * value, 0.0)
+                good = _finite(values[:nc])
+                for c in range(nc):
+                    deltas[c] += dr.select(good, minus * values[c], 0.0)
                 weight_sum += dr.select(good, minus, 0.0)
-        pixel = (j >> shift) * width + (i >> shift)
-        _add_by_segment(sums + [valid_n, count], pixel, deltas + [weight_sum, new_count])
-        del deltas, weight_sum, new_count, pixel, base
-        if level + 1 >= self.max_depth:
-            return mi.UInt32(), mi.UInt32(), mi.UInt64(), []
+        added = mi.Float(3.0) + dr.select(distinct[3], 1.0, 0.0) + dr.select(distinct[4], 1.0, 0.0)
+        outputs = deltas + [weight_sum, added]
+        if not last_level:
+            # The 3 x 3 points of the split square (code u + 3 v) on the display scale;
+            # sub-square q = (cx, cy) is split again when its corners differ.
+            shown = [_shown(new[_CODE_TO_NEW[code]]) for code in range(9)]
+            for p, code in enumerate((0, 2, 6, 8)):
+                shown[code] = _shown(quad[p])
+            flags = dr.empty(mi.UInt32, 4 * n)
+            slot5 = dr.empty(mi.UInt32, 5 * n)
+            index = dr.arange(mi.UInt32, n)
+            for q in range(4):
+                cx, cy = q & 1, q >> 1
+                codes = [(cx + a) + 3 * (cy + b) for b in (0, 1) for a in (0, 1)]
+                keep = _spread([shown[code] for code in codes]) > threshold
+                dr.scatter(flags, dr.select(keep, mi.UInt32(1), 0), 4 * index + q)
+            for k in range(5):
+                dr.scatter(slot5, slots[k], 5 * index + k)
+        dr.eval(outputs)
 
-        # The four sub-squares of every split square; keep those that still differ.
-        lane = dr.arange(mi.UInt32, 4 * n)
-        s = lane >> 2
-        q = lane & 3
+        # 5. Sum the additions of each pixel's run of squares (sorted by pixel).
+        _add_by_pixel(sums + [valid_n, count], pixel, outputs, o_n)
+        if last_level:
+            return None
+
+        # 6. The sub-squares to split next (children follow their parent: key order).
+        sel, pos = _compact(flags)
+        if sel is None:
+            return None
+        ps, q = sel >> 2, sel & 3
         cx, cy = q & 1, q >> 1
-        sub = []
-        for a, b in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            u, v = cx + a, cy + b
-            corner = ((u & 1) == 0) & ((v & 1) == 0)
-            parent = (v >> 1) * 2 + (u >> 1)
-            new = dr.gather(mi.UInt32, mi.UInt32(_CODE_TO_NEW), u + 3 * v)
-            from_points = dr.gather(mi.UInt32, slot, 5 * s + new, ~corner)
-            values = []
-            for c, channel in enumerate(points):
-                value = dr.gather(mi.Float, channel, from_points, ~corner)
-                for p in range(4):
-                    value = dr.select(corner & (parent == p), dr.gather(mi.Float, quad[p][c], s), value)
-                values.append(value)
-            sub.append(values)
-        keep = _spread([self._display(values) for values in sub]) > threshold
-        if level + 1 < self.min_depth:
-            keep |= True
-        dr.eval(sub, keep)
-        sel = dr.compress(keep)
-        ps = sel >> 2
-        pq = sel & 3
-        i = 2 * dr.gather(mi.UInt32, i, ps) + (pq & 1)
-        j = 2 * dr.gather(mi.UInt32, j, ps) + (pq >> 1)
-        key = dr.gather(mi.UInt64, key, ps) * 4 + mi.UInt64(pq)
-        quad = [[dr.gather(mi.Float, value, sel) for value in values] for values in sub]
-        dr.eval(i, j, key, quad)
-        return i, j, key, quad
+        child_quad = []
+        for p in range(4):  # corner p = (a, b) of the child: the parent's corner when p == q
+            a, b = p & 1, p >> 1
+            parent = q == p
+            code = (cx + a) + 3 * (cy + b)
+            at = dr.gather(mi.UInt32, slot5, 5 * ps + dr.gather(mi.UInt32, mi.UInt32(_CODE_TO_NEW), code), ~parent)
+            child_quad.append([dr.select(parent, dr.gather(mi.Float, quad[p][c], ps),
+                                         dr.gather(mi.Float, channel, at, ~parent))
+                               for c, channel in enumerate(points)])
+        # Neighbours: the right one of a left child (cx = 0) is its sibling; that of a
+        # right child is the left child in the same row of the parent's right neighbour
+        # (if that one was split too). Likewise below.
+        parent_r = dr.gather(mi.Bool, found_r, ps)
+        lane_r = dr.select(cx == 0, sel + 1, 4 * dr.gather(mi.UInt32, index_r, ps, parent_r) + (q - 1))
+        has_r = (cx == 0) | parent_r
+        parent_t = dr.gather(mi.Bool, found_t, ps)
+        lane_t = dr.select(cy == 0, sel + 2, 4 * dr.gather(mi.UInt32, index_t, ps, parent_t) + (q - 2))
+        has_t = (cy == 0) | parent_t
+        return (2 * dr.gather(mi.UInt32, i, ps) + cx, 2 * dr.gather(mi.UInt32, j, ps) + cy, child_quad,
+                has_r & (dr.gather(mi.UInt32, flags, lane_r, has_r) != 0), dr.gather(mi.UInt32, pos, lane_r, has_r),
+                has_t & (dr.gather(mi.UInt32, flags, lane_t, has_t) != 0), dr.gather(mi.UInt32, pos, lane_t, has_t))
 
     # -- variance criterion ---------------------------------------------------------------
     def _render_variance(self, scene, sensor, seed, spp, width, height):
@@ -634,36 +710,90 @@ def _add_blocks(totals, owner, values, block: int) -> None:
     dr.eval(totals)
 
 
-def _add_by_segment(totals, owner, values) -> None:
-    """``totals[c][owner[s]] += values[c][s]`` for ``owner`` sorted ascending, in place.
+def _compact(flags):
+    """Indices of the nonzero ``flags`` (UInt32 0 / 1) in order, and the exclusive prefix
+    sum ``pos`` (the index in that list of each flagged lane); ``(None, None)`` when no
+    flag is set. One prefix sum and one scatter: like ``dr.compress``, but ``pos`` is
+    kept for the next level's neighbour look-ups."""
+    dr.eval(flags)
+    inclusive = dr.cumsum(flags)
+    total = int(inclusive[dr.width(flags) - 1])
+    if total == 0:
+        return None, None
+    pos = inclusive - flags
+    dr.eval(pos)
+    sel = dr.empty(mi.UInt32, total)
+    dr.scatter(sel, dr.arange(mi.UInt32, dr.width(flags)), pos, flags != 0)
+    dr.eval(sel)
+    return sel, pos
 
-    Deterministic: each run of equal owners is summed in order by one lane of a
-    symbolic loop, then written with a plain scatter (the owners are then unique).
+
+def _divmod(x, d: int):
+    """``(x // d, x % d)`` for a UInt32 ``x`` and a positive Python int ``d``, without
+    integer division (scalar per lane on the CPU) or a per-``d`` literal:
+    ``floor((x + 1/2) / d)`` in double precision with an opaque reciprocal is exact
+    (its rounding error, below 2^-52 x / d < 2^-20 / d, is smaller than the distance
+    1 / (2 d) from (x + 1/2) / d to the nearest integer)."""
+    inverse = dr.opaque(mi.Float64, 1.0 / d)
+    q = mi.UInt32(dr.floor((mi.Float64(x) + 0.5) * inverse))
+    return q, x - q * dr.opaque(mi.UInt32, d)
+
+
+def _search(pred, n, width):
+    """First index k in [0, n) where the monotone predicate ``pred(k)`` is false (``n``
+    when it is true everywhere), for ``width`` lanes at once. A symbolic loop with the
+    bound ``n`` opaque, unlike ``dr.binary_search`` whose Python loop bakes the range
+    (and its log2 length) into the kernel and recompiles it for every new size."""
+    def cond(lo, hi):
+        return lo < hi
+
+    def body(lo, hi):
+        mid = (lo + hi) >> 1
+        go = pred(mid)
+        return dr.select(go, mid + 1, lo), dr.select(go, hi, mid)
+
+    lo, _ = dr.while_loop(state=(dr.zeros(mi.UInt32, width), dr.zeros(mi.UInt32, width) + n),
+                          cond=cond, body=body, label="adaptive_search")
+    return lo
+
+
+def _add_by_pixel(totals, pixel, values, n) -> None:
+    """``totals[c][pixel[s]] += values[c][s]`` for ``pixel`` sorted ascending, in place.
+
+    Deterministic: the first square of each run of equal pixels sums the run in order
+    (a symbolic loop), then adds it with a scatter-add whose targets are unique, in the
+    same kernel.
     """
-    n = dr.width(owner)
-    if n == 0:
-        return
-    index = dr.arange(mi.UInt32, n)
-    first = (index == 0) | (owner != dr.gather(mi.UInt32, owner, index - 1, index > 0))
-    starts = dr.compress(first)
-    m = dr.width(starts)
-    ends = dr.gather(mi.UInt32, starts, dr.arange(mi.UInt32, m) + 1, dr.arange(mi.UInt32, m) + 1 < m)
-    ends = dr.select(dr.arange(mi.UInt32, m) + 1 < m, ends, n)
-    target = dr.gather(mi.UInt32, owner, starts)
+    width = dr.width(pixel)
+    index = dr.arange(mi.UInt32, width)
+    first = (index == 0) | (pixel != dr.gather(mi.UInt32, pixel, index - 1, index > 0))
 
     def cond(i, *partial):
-        return i < ends
+        return first & (i < n) & (dr.gather(mi.UInt32, pixel, i, i < n) == pixel)
 
     def body(i, *partial):
         return (i + 1, *[p + dr.gather(mi.Float, v, i) for p, v in zip(partial, values)])
 
-    state = dr.while_loop(state=(mi.UInt32(starts), *[dr.zeros(mi.Float, m) for _ in values]),
-                          cond=cond, body=body, label="adaptive_segment_sum")
-    updated = [dr.gather(mi.Float, total, target) + partial for total, partial in zip(totals, state[1:])]
-    dr.eval(updated)
-    for total, value in zip(totals, updated):
-        dr.scatter(total, value, target)
+    state = dr.while_loop(state=(mi.UInt32(index), *[dr.zeros(mi.Float, width) for _ in values]),
+                          cond=cond, body=body, label="adaptive_pixel_sum")
+    for total, partial in zip(totals, state[1:]):
+        dr.scatter_add(total, partial, pixel, first, mode=dr.ReduceMode.NoConflicts)
     dr.eval(totals)
+
+
+def _shown(values) -> mi.Color3f:
+    """The display colour carried as the last three channels of a sample."""
+    return mi.Color3f(values[-3], values[-2], values[-1])
+
+
+def _compact1by1(x):
+    """Gather the even bits of a UInt32 into its low 16 bits (inverse of ``_part1by1``)."""
+    x = x & 0x55555555
+    x = (x | (x >> 1)) & 0x33333333
+    x = (x | (x >> 2)) & 0x0F0F0F0F
+    x = (x | (x >> 4)) & 0x00FF00FF
+    x = (x | (x >> 8)) & 0x0000FFFF
+    return x
 
 
 def _finite(channels) -> mi.Bool:
@@ -685,15 +815,6 @@ def _spread(quad) -> mi.Float:
         high = dr.select(ok, dr.maximum(high, value), high)
     spread = dr.select(high >= low, high - low, 0.0)
     return dr.maximum(dr.maximum(spread.x, spread.y), spread.z)
-
-
-def _square_key(i, j, shift, width):
-    """Sort key of square (i, j) of a level: pixel index (row-major), then the Morton code
-    of the square inside its pixel (so the four children of a square follow it in order)."""
-    mask = (mi.UInt32(1) << shift) - 1
-    local = _part1by1(i & mask) | (_part1by1(j & mask) << 1)
-    pixel = (j >> shift) * width + (i >> shift)
-    return (mi.UInt64(pixel) << mi.UInt64(2 * shift)) | mi.UInt64(local)
 
 
 PLUGIN_NAME = AdaptiveIntegrator.PLUGIN_NAME
