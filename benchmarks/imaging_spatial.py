@@ -1,72 +1,60 @@
-"""Benchmark imaging.filters / imaging.resample against OpenCV (best of 1 and 2 threads) and scipy.
+"""Benchmark imaging.filters / imaging.resample beside OpenCV (best of 1 and 2 threads), scipy, scikit-image.
 
-Run: flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_spatial.py [--size 2048] [--repeat 9]
+Run:  flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_spatial.py [--size 2048] [--repeat 9]
 
-Prints a Markdown table: steady-state median time (after dr.eval + dr.sync_thread), the first
-call (JIT compile + run, with whatever ~/.drjit cache there is), the peers, and ours / OpenCV best.
+One run, 2048x2048 float32 grey (0..255) by default. Steady state: median (and min) of
+``--repeat`` calls, each timed until the result is in memory (Dr.Jit: ``dr.eval`` +
+``dr.sync_thread``), with ours, OpenCV 1 thread and OpenCV 2 threads *interleaved* in every
+repeat so that load from other processes hits all of them alike. The ratio is ours / the faster
+OpenCV median. scipy.ndimage and scikit-image run a few times each (they are 10-200x slower).
+
+Per operation the Dr.Jit kernel history gives the kernels launched per call, their summed
+execution time, and whether any steady-state call compiled a kernel again (a recompile
+would mean a per-call value was baked in as a constant). The first call (JIT compile +
+run) is measured apart in fresh subprocesses, with the kernel cache ``~/.drjit`` cold
+(HOME pointed at an empty folder) and warm.
+
+Prints Markdown tables (the RESULTS.md block is written by hand from them).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-import imaging  # noqa: F401
-import cv2
-import drjit as dr
-import scipy
-import scipy.ndimage as ndi
-from tqdm import tqdm
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 
-from imaging import filters as F
-from imaging.resample import resize
+import imaging  # noqa: E402,F401  (picks libLLVM first)
+import cv2  # noqa: E402
+import drjit as dr  # noqa: E402
+import scipy  # noqa: E402
+import scipy.ndimage as ndi  # noqa: E402
+import skimage  # noqa: E402
+import skimage.filters  # noqa: E402
+import skimage.transform  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
-
-def timed(function, repeat):
-    start = time.perf_counter()
-    function()
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return first, float(np.median(times))
+from imaging import filters as F  # noqa: E402
+from imaging.resample import resize  # noqa: E402
 
 
-def ours(function):
-    def run():
-        result = function()
-        for r in (result if isinstance(result, tuple) else (result,)):
-            dr.eval(r)
-        dr.sync_thread()
-    return run
-
-
-def opencv_best(function, repeat):
-    best = None
-    for threads in (1, 2):
-        cv2.setNumThreads(threads)
-        _, t = timed(function, repeat)
-        best = t if best is None or t < best[0] else best
-        best = best if isinstance(best, tuple) else (best, threads)
-    cv2.setNumThreads(2)
-    return best
-
-
-def main():
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--size", type=int, default=2048)
-    parser.add_argument("--repeat", type=int, default=9)
-    args = parser.parse_args()
-    n = args.size
+def cases(n: int):
+    """(name, ours, OpenCV, scipy, scikit-image, goal) for an n x n float32 image."""
     img = (np.random.default_rng(0).random((n, n)) * 255).astype(np.float32)
     up, down = (n * 5 // 4, n * 5 // 4), (n * 3 // 4, n * 3 // 4)
+    box7 = np.ones((7, 7), np.float32)
 
-    def cv_norm():
+    def cv_norm():     # filter2D, |.| and min-max stretch over the interior (the ring is not computed)
         d = cv2.filter2D(img, -1, F.GAUSSIAN_3, borderType=cv2.BORDER_CONSTANT)
         roi = np.abs(d[1:-1, 1:-1])
         return cv2.normalize(roi, roi, 0, 255, cv2.NORM_MINMAX)
@@ -74,53 +62,153 @@ def main():
     def cv_grad(kx, ky):
         return lambda: cv2.magnitude(cv2.filter2D(img, -1, kx), cv2.filter2D(img, -1, ky))
 
-    cases = [
-        ("correlate 3x3 + normalize", ours(lambda: F.correlate(img, F.GAUSSIAN_3, normalize=True)), cv_norm,
-         lambda: ndi.correlate(img, F.GAUSSIAN_3, mode="constant"), 0.7),
-        ("correlate 3x3", ours(lambda: F.correlate(img, F.GAUSSIAN_3)),
-         lambda: cv2.filter2D(img, -1, F.GAUSSIAN_3), lambda: ndi.correlate(img, F.GAUSSIAN_3), None),
-        ("correlate 7x7", ours(lambda: F.correlate(img, np.ones((7, 7), np.float32))),
-         lambda: cv2.filter2D(img, -1, np.ones((7, 7), np.float32)), None, None),
-        ("Sobel magnitude", ours(lambda: F.sobel(img)),
+    def sk_resize(size, order):
+        return lambda: skimage.transform.resize(img, (size[1], size[0]), order=order, mode="edge",
+                                                anti_aliasing=False, preserve_range=True)
+
+    return [
+        ("correlate 3x3 + normalize", lambda: F.correlate(img, F.GAUSSIAN_3, normalize=True), cv_norm,
+         None, None, 0.7),
+        ("correlate 3x3", lambda: F.correlate(img, F.GAUSSIAN_3),
+         lambda: cv2.filter2D(img, -1, F.GAUSSIAN_3), lambda: ndi.correlate(img, F.GAUSSIAN_3), None, None),
+        ("correlate 7x7", lambda: F.correlate(img, box7), lambda: cv2.filter2D(img, -1, box7),
+         lambda: ndi.correlate(img, box7), None, None),
+        ("Sobel magnitude", lambda: F.sobel(img),
          lambda: cv2.magnitude(cv2.Sobel(img, cv2.CV_32F, 1, 0), cv2.Sobel(img, cv2.CV_32F, 0, 1)),
-         lambda: np.hypot(ndi.sobel(img, 1), ndi.sobel(img, 0)), 0.7),
-        ("Prewitt magnitude", ours(lambda: F.prewitt(img)), cv_grad(F.PREWITT_X, F.PREWITT_Y),
-         lambda: np.hypot(ndi.prewitt(img, 1), ndi.prewitt(img, 0)), 0.7),
-        ("Laplacian", ours(lambda: F.laplacian(img)), lambda: cv2.Laplacian(img, cv2.CV_32F, ksize=1),
-         lambda: ndi.correlate(img, F.LAPLACIAN), 0.7),
-        ("median 3x3", ours(lambda: F.median(img, 3)), lambda: cv2.medianBlur(img, 3),
-         lambda: ndi.median_filter(img, 3, mode="nearest"), 1.0),
-        ("median 5x5", ours(lambda: F.median(img, 5)), lambda: cv2.medianBlur(img, 5),
-         lambda: ndi.median_filter(img, 5, mode="nearest"), 1.0),
-        ("median 7x7 (peer: scipy)", ours(lambda: F.median(img, 7)), None,
-         lambda: ndi.median_filter(img, 7, mode="nearest"), None),
-        (f"bilinear resize -> {up[0]}", ours(lambda: resize(img, up, "bilinear")),
-         lambda: cv2.resize(img, up, interpolation=cv2.INTER_LINEAR), None, 1.0),
-        (f"bilinear resize -> {down[0]}", ours(lambda: resize(img, down, "bilinear")),
-         lambda: cv2.resize(img, down, interpolation=cv2.INTER_LINEAR), None, 1.0),
-        (f"bicubic resize -> {up[0]}", ours(lambda: resize(img, up, "bicubic", a=-0.75)),
-         lambda: cv2.resize(img, up, interpolation=cv2.INTER_CUBIC), None, 1.0),
-        (f"bicubic resize -> {down[0]}", ours(lambda: resize(img, down, "bicubic", a=-0.75)),
-         lambda: cv2.resize(img, down, interpolation=cv2.INTER_CUBIC), None, 1.0),
+         lambda: np.hypot(ndi.sobel(img, 1), ndi.sobel(img, 0)), lambda: skimage.filters.sobel(img), 0.7),
+        ("Prewitt magnitude", lambda: F.prewitt(img), cv_grad(F.PREWITT_X, F.PREWITT_Y),
+         lambda: np.hypot(ndi.prewitt(img, 1), ndi.prewitt(img, 0)), lambda: skimage.filters.prewitt(img), 0.7),
+        ("Laplacian", lambda: F.laplacian(img), lambda: cv2.Laplacian(img, cv2.CV_32F, ksize=1),
+         lambda: ndi.correlate(img, F.LAPLACIAN), None, 0.7),
+        ("median 3x3", lambda: F.median(img, 3), lambda: cv2.medianBlur(img, 3),
+         lambda: ndi.median_filter(img, 3, mode="nearest"), None, 1.0),
+        ("median 5x5", lambda: F.median(img, 5), lambda: cv2.medianBlur(img, 5),
+         lambda: ndi.median_filter(img, 5, mode="nearest"), None, 1.0),
+        ("median 7x7 (peer: scipy)", lambda: F.median(img, 7), None,
+         lambda: ndi.median_filter(img, 7, mode="nearest"), None, None),
+        (f"bilinear resize -> {up[0]}", lambda: resize(img, up, "bilinear"),
+         lambda: cv2.resize(img, up, interpolation=cv2.INTER_LINEAR), None, sk_resize(up, 1), 1.0),
+        (f"bilinear resize -> {down[0]}", lambda: resize(img, down, "bilinear"),
+         lambda: cv2.resize(img, down, interpolation=cv2.INTER_LINEAR), None, sk_resize(down, 1), 1.0),
+        (f"bicubic resize -> {up[0]}", lambda: resize(img, up, "bicubic", a=-0.75),
+         lambda: cv2.resize(img, up, interpolation=cv2.INTER_CUBIC), None, sk_resize(up, 3), 1.0),
+        (f"bicubic resize -> {down[0]}", lambda: resize(img, down, "bicubic", a=-0.75),
+         lambda: cv2.resize(img, down, interpolation=cv2.INTER_CUBIC), None, sk_resize(down, 3), 1.0),
     ]
-    print(f"machine: {platform.processor() or platform.machine()}, {dr.detail.llvm_version() if hasattr(dr.detail, 'llvm_version') else ''} "
-          f"Dr.Jit {dr.__version__}, OpenCV {cv2.__version__}, scipy {scipy.__version__}, image {n}x{n} float32, "
-          f"median of {args.repeat}")
+
+
+def run_ours(function):
+    result = function()
+    for r in result if isinstance(result, tuple) else (result,):
+        dr.eval(r)
+    dr.sync_thread()
+
+
+def clock(function) -> float:
+    start = time.perf_counter()
+    function()
+    return time.perf_counter() - start
+
+
+def cv_threads(function, threads):
+    def run():
+        cv2.setNumThreads(threads)
+        start = time.perf_counter()
+        function()
+        return time.perf_counter() - start
+    return run
+
+
+def first_calls(n: int) -> dict:
+    """First call of every case in this (fresh) process: wall time and JIT codegen+backend time."""
+    dr.eval(dr.llvm.Float(np.arange(4, dtype=np.float32)) * 3.0)   # Dr.Jit/LLVM start-up, not per op
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    out = {}
+    for name, ours, *_ in cases(n):
+        dr.kernel_history()
+        wall = clock(lambda: run_ours(ours))
+        history = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+        compile_ms = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in history)
+        out[name] = {"wall_ms": wall * 1e3, "compile_ms": compile_ms,
+                     "from_cache": sum(1 for k in history if k.get("cache_hit") or k.get("cache_disk"))}
+    return out
+
+
+def first_calls_subprocess(n: int, cold: bool) -> dict:
+    env = dict(os.environ)
+    with tempfile.TemporaryDirectory() as home:
+        if cold:
+            env["HOME"] = home
+        proc = subprocess.run([sys.executable, __file__, "--size", str(n), "--first-call-json"],
+                              env=env, capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--size", type=int, default=2048)
+    parser.add_argument("--repeat", type=int, default=9)
+    parser.add_argument("--peer-repeat", type=int, default=2, help="repeats of scipy / scikit-image")
+    parser.add_argument("--only", default="", help="run only cases whose name contains this")
+    parser.add_argument("--first-call-json", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    n = args.size
+    if args.first_call_json:
+        print(json.dumps(first_calls(n)))
+        return
+
+    selected = [c for c in cases(n) if args.only in c[0]]
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
     rows = []
-    for name, our, cv, sp, goal in tqdm(cases, desc="benchmarks"):
-        first, steady = timed(our, args.repeat)
-        cv_t, threads = opencv_best(cv, args.repeat) if cv else (None, None)
-        sp_t = timed(sp, max(3, args.repeat // 3))[1] if sp else None
-        peer = cv_t if cv_t is not None else sp_t
-        ratio = steady / peer
-        met = "" if goal is None else ("yes" if ratio <= goal else "NO")
-        rows.append(f"| {name} | {steady * 1e3:.2f} | {first * 1e3:.0f} | "
-                    f"{'' if cv_t is None else f'{cv_t * 1e3:.2f} ({threads} thr)'} | "
-                    f"{'' if sp_t is None else f'{sp_t * 1e3:.1f}'} | {ratio:.2f}x | "
-                    f"{'' if goal is None else f'<= {goal}x'} {met} |")
-    print("| operation | ours ms | ours first call ms | OpenCV best ms | scipy ms | ours / peer | goal |")
-    print("|---|---|---|---|---|---|---|")
-    print("\n".join(rows))
+    for name, ours, cv, sp, sk, goal in tqdm(selected, desc="steady state"):
+        run_ours(ours)                                  # compile (kept apart) and warm up
+        if cv:
+            cv(); cv()
+        mine, cv1, cv2t, kernels, exec_ms, recompiles = [], [], [], [], [], 0
+        for _ in range(args.repeat):                    # interleaved: load hits all alike
+            dr.kernel_history()
+            mine.append(clock(lambda: run_ours(ours)))
+            history = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+            kernels.append(len(history))
+            exec_ms.append(sum(k["execution_time"] for k in history))
+            recompiles += sum(1 for k in history if not k.get("cache_hit"))
+            if cv:
+                cv1.append(cv_threads(cv, 1)())
+                cv2t.append(cv_threads(cv, 2)())
+        cv2.setNumThreads(2)
+        sp_t = float(np.median([clock(sp) for _ in range(args.peer_repeat)])) if sp else None
+        sk_t = float(np.median([clock(sk) for _ in range(args.peer_repeat)])) if sk else None
+        cv_best = min((float(np.median(cv1)), 1), (float(np.median(cv2t)), 2)) if cv else None
+        rows.append(dict(name=name, ours=float(np.median(mine)), ours_min=min(mine), cv=cv_best,
+                         scipy=sp_t, skimage=sk_t, goal=goal, kernels=int(np.median(kernels)),
+                         exec_ms=float(np.median(exec_ms)), recompiles=recompiles))
+
+    cold = first_calls_subprocess(n, cold=True)
+    warm = first_calls_subprocess(n, cold=False)
+    load = os.getloadavg()
+    print(f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, {platform.platform()}; Python "
+          f"{platform.python_version()}, Dr.Jit {dr.__version__}, LLVM {'.'.join(map(str, dr.detail.llvm_version()))}, "
+          f"OpenCV {cv2.__version__}, scipy {scipy.__version__}, scikit-image {skimage.__version__}; image {n}x{n} "
+          f"float32; median of {args.repeat} interleaved repeats; load average at the end "
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.\n")
+    print("| operation | ours ms (min) | OpenCV best ms | scipy ms | skimage ms | ours / OpenCV | goal | "
+          "kernels/call (exec ms) | first call cold / warm ms (JIT compile ms) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        peer = r["cv"][0] if r["cv"] else r["scipy"]
+        ratio = r["ours"] / peer
+        goal = "" if r["goal"] is None else f"<= {r['goal']}x {'yes' if ratio <= r['goal'] else 'NO'}"
+        c, w = cold.get(r["name"], {}), warm.get(r["name"], {})
+        cv_text = f"{r['cv'][0] * 1e3:.2f} ({r['cv'][1]} thr)" if r["cv"] else ""
+        sp_text = "" if r["scipy"] is None else f"{r['scipy'] * 1e3:.1f}"
+        sk_text = "" if r["skimage"] is None else f"{r['skimage'] * 1e3:.1f}"
+        first = (f"{c.get('wall_ms', float('nan')):.0f} ({c.get('compile_ms', float('nan')):.0f}) / "
+                 f"{w.get('wall_ms', float('nan')):.0f} ({w.get('compile_ms', float('nan')):.0f})")
+        print(f"| {r['name']} | {r['ours'] * 1e3:.2f} ({r['ours_min'] * 1e3:.2f}) | {cv_text} | {sp_text} | "
+              f"{sk_text} | {ratio:.2f}x{'' if r['cv'] else ' (scipy)'} | {goal} | "
+              f"{r['kernels']} ({r['exec_ms']:.2f}) | {first} |")
+    total = sum(r["recompiles"] for r in rows)
+    print(f"\nKernels compiled again during steady-state calls: {total} (0 = no per-call recompiles).")
 
 
 if __name__ == "__main__":

@@ -124,11 +124,23 @@ def _check_size(size: Any) -> int:
 _scratch = threading.local()
 
 
+def _aligned_empty(length: int) -> np.ndarray:
+    """An uninitialised float32 array whose data starts on a 64-byte boundary.
+
+    Dr.Jit compiles a contiguous load as ``align 64`` or ``align 1`` depending on the
+    pointer it maps, so arrays handed to kernels must have a reproducible alignment, or
+    the same kernel is compiled again whenever numpy's allocation lands elsewhere.
+    """
+    raw = np.empty(length + 16, dtype=np.float32)
+    start = (-raw.ctypes.data % 64) // 4
+    return raw[start:start + length]
+
+
 def _padded_buffer(length: int) -> np.ndarray:
     """A reusable per-thread float32 buffer of at least ``length`` elements (no page faults)."""
     buffer = getattr(_scratch, "buffer", None)
     if buffer is None or buffer.size < length or buffer.size > 4 * length + (1 << 20):
-        buffer = np.empty(length, dtype=np.float32)
+        buffer = _aligned_empty(length)
         _scratch.buffer = buffer
     return buffer[:length]
 
@@ -209,14 +221,17 @@ class _Window:
         C = self.C
         pixels = self.source.reshape(self.H * self.W, C)
         taps = {}
-        for dy, dx in offsets:
+        size = ys.size * C
+        block = _aligned_empty(len(offsets) * size)     # one block: reproducible alignment per tap
+        for k, (dy, dx) in enumerate(offsets):
             sy = _source_index(ys + dy, self.H, border)
             sx = _source_index(xs + dx, self.W, border)
             index = sy * self.W + sx
-            values = pixels[np.maximum(index, 0)]
+            values = block[k * size:(k + 1) * size].reshape(-1, C)
+            np.take(pixels, np.maximum(index, 0), axis=0, out=values)
             if border == "constant":
-                values = np.where(((sy < 0) | (sx < 0))[:, None], np.float32(0), values)
-            taps[(dy, dx)] = Float(np.ascontiguousarray(values, dtype=np.float32).reshape(-1))
+                values[(sy < 0) | (sx < 0)] = 0.0
+            taps[(dy, dx)] = Float(block[k * size:(k + 1) * size])
         elements = ((ys * self.W + xs)[:, None] * C + np.arange(C)[None, :]).reshape(-1)
         return UInt32(elements.astype(np.uint32)), taps
 
