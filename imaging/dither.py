@@ -898,16 +898,22 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     channels = shape[2] if len(shape) == 3 else 1
     n = template.shape[0]
     by, bx = -(-height // n), -(-width // n)
-    C = dr.opaque(UInt32, channels)
-    pixel, c = _divmod(dr.arange(UInt32, dr.width(values)), channels)
-    y, x = _divmod(pixel, width)
-    block = (_divmod(y, n)[0] * dr.opaque(UInt32, bx) + _divmod(x, n)[0]) * C + c
+    y, x = _coordinates(dr.width(values), width, channels)
+    c = _divmod(dr.arange(UInt32, dr.width(values)), channels, dr.width(values))[1]
+    sy, ty = _divmod(y, n, height)
+    sx, tx = _divmod(x, n, width)
+    block = (sy * _constant(UInt32, bx) + sx) * _constant(UInt32, channels) + c
     sums = dr.zeros(Float64, by * bx * channels)
-    counts = dr.zeros(Float64, by * bx * channels)
     dr.scatter_add(sums, Float64(values), block)
-    dr.scatter_add(counts, Float64(1.0), block)
-    mean = Float(dr.gather(Float64, sums, block) / dr.gather(Float64, counts, block))
-    thresholds = _template_thresholds(template, y, x)
+    # Pixels per block, cut by the right and bottom edges: min(n, H - n sy) min(n, W - n sx).
+    N = _constant(UInt32, n)
+    count = dr.minimum(N, _constant(UInt32, height) - sy * N) * dr.minimum(N, _constant(UInt32, width) - sx * N)
+    mean = Float(dr.gather(Float64, sums, block) / Float64(count))
+    index = ty * N + tx
+    if levels == 2:
+        up = mean >= dr.gather(Float, _threshold_table(template.tobytes(), n), index)
+        return TensorXf(dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0)), shape)
+    thresholds = dr.gather(Float, _template_table(template.tobytes(), n), index)
     return TensorXf(_ordered_values(mean, thresholds, n * n, levels), shape)
 
 
@@ -945,18 +951,22 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf:
     template = clustered_dot(int(n)) if template is None else _check_template(template)
     if template.shape[0] != n:
         raise ValueError(f"template: expected shape ({n}, {n}), got {template.shape}")
-    tensor, values = _intensity(image)
+    tensor = as_tensor(image)
     shape = tuple(tensor.shape)
     height, width = shape[0], shape[1]
     channels = shape[2] if len(shape) == 3 else 1
     out_shape = (height * n, width * n) + ((channels,) if len(shape) == 3 else ())
-    C = dr.opaque(UInt32, channels)
-    pixel, c = _divmod(dr.arange(UInt32, height * n * width * n * channels), channels)
-    oy, ox = _divmod(pixel, width * n)
-    source = (_divmod(oy, n)[0] * dr.opaque(UInt32, width) + _divmod(ox, n)[0]) * C + c
-    intensity = dr.gather(Float, values, source)
-    thresholds = _template_thresholds(template, oy, ox)
-    return TensorXf(_ordered_values(intensity, thresholds, n * n, 2), out_shape)
+    count = height * n * width * n * channels
+    pixel, c = _divmod(dr.arange(UInt32, count), channels, count)
+    oy, ox = _divmod(pixel, width * n, -(-count // channels))
+    sy, ty = _divmod(oy, n, height * n)
+    sx, tx = _divmod(ox, n, width * n)
+    source = (sy * _constant(UInt32, width) + sx) * _constant(UInt32, channels) + c
+    # The raw value: the 1-bit rule needs no clipping (see _ordered_1bit), so no pass before.
+    intensity = dr.gather(Float, tensor.array, source)
+    table = _threshold_table(template.tobytes(), n)
+    up = intensity >= dr.gather(Float, table, ty * _constant(UInt32, n) + tx)
+    return TensorXf(dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0)), out_shape)
 
 
 def void_and_cluster(n: int = 64, *, sigma: float = 1.5, seed: int = 0, density: float = 0.1) -> np.ndarray:

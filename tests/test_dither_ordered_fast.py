@@ -226,3 +226,72 @@ def test_diffusion_is_one_kernel_launch():
             assert len(launches) == 1
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+# ----------------------------------------------------------------------------------------------
+# halftone: the same one-comparison rule per output cell
+
+
+def halftone_reference(image, template):
+    """Every pixel becomes its n x n pattern: cell (ty, tx) white where I (n^2+1) >= 255 T (exact)."""
+    n = template.shape[0]
+    big = np.repeat(np.repeat(np.asarray(image), n, axis=0), n, axis=1)
+    return spec_rule(big, template)
+
+
+@pytest.mark.parametrize("n,shape", [(1, (3, 4)), (2, (5, 3)), (3, (4, 7, 3)), (4, (2, 2)), (5, (3, 1, 2))])
+def test_halftone_follows_the_exact_rule(n, shape):
+    from imaging.dither import halftone
+
+    rng = np.random.default_rng(n)
+    image = rng.uniform(-30, 290, shape).astype(np.float32)
+    image.flat[0], image.flat[-1] = np.nan, np.inf
+    template = clustered_dot(n)
+    assert np.array_equal(np.asarray(halftone(image, n)), halftone_reference(image, template))
+    if n in (2, 4):
+        assert np.array_equal(np.asarray(halftone(image, n, template=bayer(n))), halftone_reference(image, bayer(n)))
+
+
+def test_halftone_output_beyond_2_to_24_values():
+    from imaging.dither import halftone
+
+    # 690 x 690 pixels, n = 6: 4140^2 = 17.1 M output values (> 2^24: the float64 index path).
+    image = np.random.default_rng(6).integers(0, 256, (690, 690)).astype(np.uint8)
+    out = np.asarray(halftone(image, 6)) > 0
+    n, template = 6, clustered_dot(6)
+    cells = np.tile(255 * template.astype(np.int32), (690, 690))
+    codes = np.repeat(np.repeat(image.astype(np.int32) * (n * n + 1), n, axis=0), n, axis=1)
+    assert np.array_equal(out, codes >= cells)
+
+
+# ----------------------------------------------------------------------------------------------
+# pattern: one mean per n x n block (edge blocks average what they have), then the same rule
+
+
+def block_means(image, n):
+    values = np.asarray(image, dtype=np.float32)
+    values = np.clip(np.where(np.isnan(values), 0, values), 0, 255).astype(np.float64)
+    h, w = values.shape[:2]
+    out = np.empty_like(values)
+    for by in range(0, h, n):  # a loop over blocks in the reference only
+        for bx in range(0, w, n):
+            block = values[by:by + n, bx:bx + n]
+            out[by:by + n, bx:bx + n] = block.mean(axis=(0, 1))
+    return out.astype(np.float32)
+
+
+@pytest.mark.parametrize("n,shape", [(1, (3, 5)), (2, (5, 7)), (4, (9, 6, 3)), (3, (1, 8)), (8, (4, 4))])
+def test_pattern_uses_block_means_and_the_exact_rule(n, shape):
+    from imaging.dither import pattern
+
+    rng = np.random.default_rng(n * 7)
+    image = rng.uniform(-20, 280, shape).astype(np.float32)
+    image.flat[1] = np.nan
+    template = bayer(n) if n in (1, 2, 4, 8) else clustered_dot(n)
+    got = np.asarray(pattern(image, template))
+    expected = spec_rule(block_means(image, n), template)
+    assert np.array_equal(got, expected)
+    # levels > 2 on block-constant integer images (integer means): the generalised rule
+    coarse = rng.integers(0, 256, (-(-shape[0] // n), -(-shape[1] // n)) + shape[2:])
+    blocky = np.kron(coarse, np.ones((n, n) + (1,) * (len(shape) - 2)))[:shape[0], :shape[1]].astype(np.uint8)
+    assert np.array_equal(np.asarray(pattern(blocky, template, levels=3)), np.asarray(ordered(blocky, template, levels=3)))
