@@ -35,6 +35,7 @@ convention, but any float values (negative, HDR) are accepted.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections.abc import Callable, Sequence
@@ -200,40 +201,49 @@ class _Window:
     def taps(self, offsets: Sequence[tuple[int, int]]) -> Taps:
         return {d: self.tap(*d) for d in offsets}
 
-    def ring(self) -> np.ndarray:
-        """(y, x) pixel coordinates of the border ring (pixels where the window does not fit)."""
-        H, W, ry, rx = self.H, self.W, self.ry, self.rx
-        top = np.arange(min(ry, H))
-        bottom = np.arange(max(H - ry, min(ry, H)), H)
-        rows = np.concatenate([top, bottom])
-        ys = [np.repeat(rows, W)]
-        xs = [np.tile(np.arange(W), rows.size)]
-        middle = np.arange(min(ry, H), max(H - ry, min(ry, H)))
-        if middle.size:
-            cols = np.concatenate([np.arange(min(rx, W)), np.arange(max(W - rx, min(rx, W)), W)])
-            ys.append(np.repeat(middle, cols.size))
-            xs.append(np.tile(cols, middle.size))
-        return np.concatenate(ys), np.concatenate(xs)
-
     def ring_taps(self, border: str, offsets: Sequence[tuple[int, int]]) -> tuple[UInt32, Taps]:
         """Element indices of the ring and, per tap, the ring's values under a padded border mode."""
-        ys, xs = self.ring()
-        C = self.C
-        pixels = self.source.reshape(self.H * self.W, C)
-        taps = {}
-        size = ys.size * C
-        block = _aligned_empty(len(offsets) * size)     # one block: reproducible alignment per tap
-        for k, (dy, dx) in enumerate(offsets):
-            sy = _source_index(ys + dy, self.H, border)
-            sx = _source_index(xs + dx, self.W, border)
-            index = sy * self.W + sx
-            values = block[k * size:(k + 1) * size].reshape(-1, C)
-            np.take(pixels, np.maximum(index, 0), axis=0, out=values)
-            if border == "constant":
-                values[(sy < 0) | (sx < 0)] = 0.0
-            taps[(dy, dx)] = Float(block[k * size:(k + 1) * size])
-        elements = ((ys * self.W + xs)[:, None] * C + np.arange(C)[None, :]).reshape(-1)
-        return UInt32(elements.astype(np.uint32)), taps
+        index, zero, elements = _ring_plan(self.H, self.W, self.C, self.ry, self.rx, border, tuple(offsets))
+        pixels = self.source.reshape(self.H * self.W, self.C)
+        block = _aligned_empty(index.size * self.C).reshape(*index.shape, self.C)
+        np.take(pixels, index, axis=0, out=block)          # one block: reproducible alignment per tap
+        if zero is not None:
+            block[zero] = 0.0
+        taps = {d: Float(block[k].reshape(-1)) for k, d in enumerate(offsets)}
+        return elements, taps
+
+
+@functools.lru_cache(maxsize=32)
+def _ring_plan(H: int, W: int, C: int, ry: int, rx: int, border: str,
+               offsets: tuple[tuple[int, int], ...]) -> tuple[np.ndarray, np.ndarray | None, UInt32]:
+    """Source pixel of every (tap, ring pixel) under a padded border mode, cached per geometry.
+
+    The ring is the pixels where the window does not fit (``ry`` rows and ``rx`` columns on
+    each side). Returns the (taps, ring) source pixel indices, the mask of taps that read the
+    zero outside (``constant`` only, else None) and the ring's element indices.
+    """
+    top = np.arange(min(ry, H))
+    bottom = np.arange(max(H - ry, min(ry, H)), H)
+    rows = np.concatenate([top, bottom])
+    ys = [np.repeat(rows, W)]
+    xs = [np.tile(np.arange(W), rows.size)]
+    middle = np.arange(min(ry, H), max(H - ry, min(ry, H)))
+    if middle.size:
+        cols = np.concatenate([np.arange(min(rx, W)), np.arange(max(W - rx, min(rx, W)), W)])
+        ys.append(np.repeat(middle, cols.size))
+        xs.append(np.tile(cols, middle.size))
+    ys, xs = np.concatenate(ys), np.concatenate(xs)
+    dys = np.array([d[0] for d in offsets])[:, None]
+    dxs = np.array([d[1] for d in offsets])[:, None]
+    sy = _source_index(ys[None, :] + dys, H, border)          # (taps, ring pixels)
+    sx = _source_index(xs[None, :] + dxs, W, border)
+    index = np.maximum(sy * W + sx, 0)
+    zero = ((sy < 0) | (sx < 0)) if border == "constant" else None
+    elements = ((ys * W + xs)[:, None] * C + np.arange(C)[None, :]).reshape(-1)
+    for array in (index, zero):
+        if array is not None:
+            array.setflags(write=False)
+    return index, zero, UInt32(elements.astype(np.uint32))
 
 
 def _window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Sequence[tuple[int, int]],
