@@ -663,8 +663,9 @@ def _ordered_values(values: Float, thresholds: Float, cells: int, levels: int) -
     return (base + up) * full / gaps
 
 
-#: Above this many lanes the float32 reciprocal in :func:`_divmod` is no longer exact (float32
-#: holds every integer below 2^24 exactly; see the error bound there).
+#: Bounds on the dividend of :func:`_divmod`: below 2^22 one float32 product is exact, below
+#: 2^24 one float32 product and a correction step are (see the error bounds there).
+_FLOAT32_ROUNDED = 1 << 22
 _FLOAT32_EXACT = 1 << 24
 
 _CONSTANTS: dict[tuple[type, Any], Any] = {}
@@ -691,16 +692,26 @@ def _divmod(a: UInt32, divisor: int, bound: int | None = None) -> tuple[UInt32, 
 
     LLVM has no SIMD integer division (it runs lane by lane). A power-of-two divisor is a shift
     and a mask. Otherwise a reciprocal multiplication (opaque, so the kernel does not depend on
-    the size) and one correction step: in float64 it is exact for every ``a < 2^32``; when the
-    caller knows ``a < bound <= 2^24`` it runs in float32, exact there because a float32 holds
-    ``a`` exactly and, for divisor >= 2, the estimate of a / divisor < 2^23 is off by at most
-    2^23 * 2^-23 < 1 (two roundings of relative error 2^-24), which the correction step fixes.
+    the size), chosen by ``bound`` (``a < bound``, known to the caller):
+
+    - ``bound <= 2^22``: q = trunc((a + 1/2) * fl(1/d)) in float32, no correction. The exact
+      (a + 1/2) / d lies at least 1/(2d) from an integer; two roundings (relative 2^-24 each)
+      move it by less than (a + 1/2) 2^-23 / d < 1/(2d), so the truncation is exact.
+    - ``bound <= 2^24``: float32 estimate and one correction step. a is exact in float32 and, for
+      divisor >= 2, the estimate of a / divisor < 2^23 is off by less than 2^23 * 2^-23 = 1.
+    - otherwise float64 and one correction step: exact for every ``a < 2^32``.
+
+    Dr.Jit emits plain IEEE operations here (no fast-math contraction), so the bounds hold; the
+    tests check them exhaustively near the limits.
     """
     if divisor == 1:
         return a, dr.zeros(UInt32, dr.width(a))
     if divisor & (divisor - 1) == 0:
         return a >> _constant(UInt32, divisor.bit_length() - 1), a & _constant(UInt32, divisor - 1)
     d = _constant(UInt32, divisor)
+    if bound is not None and bound <= _FLOAT32_ROUNDED:
+        q = UInt32((Float(a) + _constant(Float, 0.5)) * _constant(Float, float(np.float32(1.0) / np.float32(divisor))))
+        return q, a - q * d
     if bound is not None and bound <= _FLOAT32_EXACT:
         q = UInt32(Float(a) * _constant(Float, float(np.float32(1.0) / np.float32(divisor))))
     else:

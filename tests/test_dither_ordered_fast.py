@@ -295,3 +295,12 @@ def test_pattern_uses_block_means_and_the_exact_rule(n, shape):
     coarse = rng.integers(0, 256, (-(-shape[0] // n), -(-shape[1] // n)) + shape[2:])
     blocky = np.kron(coarse, np.ones((n, n) + (1,) * (len(shape) - 2)))[:shape[0], :shape[1]].astype(np.uint8)
     assert np.array_equal(np.asarray(pattern(blocky, template, levels=3)), np.asarray(ordered(blocky, template, levels=3)))
+
+
+def test_float32_single_product_divmod_is_exact_below_2_to_22():
+    top = 1 << 22
+    a = np.arange(0, top, dtype=np.uint32)  # every dividend the path accepts
+    for divisor in (3, 5, 7, 255, 2047, 2049, 4093, 65535, top - 1):
+        q, r = dither._divmod(UInt32(a), divisor, top)
+        assert np.array_equal(np.asarray(q), a // divisor), divisor
+        assert np.array_equal(np.asarray(r), a % divisor), divisor
