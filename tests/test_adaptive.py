@@ -388,3 +388,75 @@ def test_compare_sweeps_adaptive_thresholds_around_the_scene_integrator(mi, tmp_
     record = render_one(str(ROOT / "scenes" / "edges.xml"), "adaptive", 8.0, 0, {"res": "12"}, str(tmp_path))
     image, meta, layers = read_exr(tmp_path / "renders" / record.exr)
     assert record.spp == pytest.approx(layers["sample_count"].mean()) and record.spp > 4
+
+
+# -- scheduling (speed work): lattice start, shared points, no recompilation -----------------
+
+@pytest.mark.parametrize("min_depth, rays, edge_count", [(0, [24, 13, 25, 49], 35), (1, [77, 25, 49], 35),
+                                                         (2, [273, 49], 42)])
+def test_min_depth_lattice_batch_and_shared_points(mi, min_depth, rays, edge_count):
+    # min_depth m: one batch of the (5 * 2^m + 1) x (3 * 2^m + 1) lattice, then only the
+    # edge column: level L traces its 3 * 2^L squares' 5 points minus the
+    # 3 * 2^L - 1 midpoints shared with the square below (counted by hand).
+    scene = _edge_scene(mi, _adaptive(threshold=20.0, max_depth=3, min_depth=min_depth))
+    image, count = _render(mi, scene)
+    assert scene.integrator().stats["rays"] == rays
+    f = (EDGE_X + 1) / 2 * 5 - 2
+    a = math.floor(f * 8) / 8  # same finest column as with min_depth 0: same image
+    expected = np.zeros((3, 5))
+    expected[:, 3:] = 1.0
+    expected[:, 2] = 1.0 - a - 1 / 16
+    np.testing.assert_allclose(image[..., 0], expected, atol=1e-6)
+    flat = (2 ** min_depth + 1) ** 2
+    np.testing.assert_array_equal(np.delete(count, 2, axis=1), flat)
+    np.testing.assert_array_equal(count[:, 2], edge_count)
+
+
+def test_min_depth_equal_weighting_counts_each_lattice_point_once(mi):
+    # min_depth 1, equal weights: a flat pixel is the plain mean of its 9 lattice points.
+    scene = _gradient_scene(mi, _adaptive(threshold=math.inf, max_depth=1, min_depth=1, weighting="equal"), 4)
+    image, count = _render(mi, scene)
+    assert (count == 9).all()
+    np.testing.assert_allclose(image, _blocks(_lattice(mi, 4, 1), 4, 1, np.ones((3, 3))), rtol=1e-5, atol=1e-6)
+
+
+def test_no_kernel_recompiles_between_thresholds_seeds_and_sizes(mi):
+    # Thresholds, seeds and the number of squares per level differ between these renders;
+    # every kernel of the later ones must be one the first render already compiled (no
+    # per-call scalar or per-level size baked into a kernel as a literal).
+    import drjit as dr
+
+    scene = _default_scene(mi, "path", res=24)
+
+    def hashes(threshold, seed, min_depth):
+        integrator = mi.load_dict(_adaptive("direct", threshold=threshold, max_depth=3, min_depth=min_depth))
+        dr.kernel_history()
+        image = mi.render(scene, integrator=integrator, seed=seed)
+        dr.eval(image)
+        history = dr.kernel_history()
+        return {k["hash"] for k in history if k["type"] == dr.KernelType.JIT}, integrator.stats["rays"]
+
+    flag = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        first, rays_a = hashes(30.0, 1, 1)
+        later, rays_b = hashes(3.0, 2, 1)
+        assert rays_a[1:] != rays_b[1:] and len(rays_b) == 3  # other square counts, same levels
+        assert later <= first, f"{len(later - first)} kernels recompiled"
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, flag)
+
+
+def test_divmod_without_division_is_exact(mi):
+    import drjit as dr
+
+    from plugins.integrators.adaptive import _divmod
+
+    rng = np.random.default_rng(5)
+    x = np.concatenate([rng.integers(0, 2 ** 32, 20000, dtype=np.uint64), [0, 2 ** 32 - 1, 2 ** 31]]).astype(np.uint32)
+    for d in (1, 3, 257, 4097, 65537, 2 ** 20 + 1, 2 ** 31 - 1):
+        x_d = np.concatenate([x, (np.arange(1, 200, dtype=np.uint64) * d - 1).astype(np.uint32)[:199]])
+        q, r = _divmod(mi.UInt32(x_d), d)
+        np.testing.assert_array_equal(np.asarray(q), x_d // np.uint32(d))
+        np.testing.assert_array_equal(np.asarray(r), x_d % np.uint32(d))
+    assert dr.width(q) == len(x_d)

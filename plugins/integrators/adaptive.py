@@ -479,6 +479,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         # The squares of level m, lane = pixel * 4^m + Morton code inside the pixel (so
         # the order is by pixel, and the four children of a square follow each other).
         local_mask = dr.opaque(mi.UInt32, side * side - 1)
+        coordinate_mask = dr.opaque(mi.UInt32, side - 1)
         two_m = dr.opaque(mi.UInt32, 2 * m)
         cells = n_pixels << (2 * m)
 
@@ -492,7 +493,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
         def lane_of(i, j):  # the inverse of lattice_square
             pixel = (j >> o_shift) * o_width + (i >> o_shift)
-            return (pixel << two_m) | _part1by1(i & local_mask) | (_part1by1(j & local_mask) << 1)
+            return (pixel << two_m) | _part1by1(i & coordinate_mask) | (_part1by1(j & coordinate_mask) << 1)
 
         quad = lattice_square(dr.arange(mi.UInt32, cells))[2]
         flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)
@@ -547,7 +548,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         # 3. The ray batch: lane t belongs to the first square whose range ends after t.
         lane = dr.arange(mi.UInt32, total)
         s = _search(lambda k: dr.gather(mi.UInt32, end, k) <= lane, o_n, total)
-        k = lane - dr.gather(mi.UInt32, start, s)
+        k = lane - dr.gather(mi.UInt32, end, s) + dr.gather(mi.UInt32, points_of, s)
         k = dr.select((k == 3) & dr.gather(mi.Bool, found_r, s), mi.UInt32(4), k)
         dx = dr.gather(mi.UInt32, mi.UInt32(_NEW_DX), k)
         dy = dr.gather(mi.UInt32, mi.UInt32(_NEW_DY), k)
@@ -561,10 +562,12 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
         # 4. Per square: the slots of its five new points, what the split adds, the
         # sub-squares to split next.
+        def start_of(at, active):
+            return dr.gather(mi.UInt32, end, at, active) - dr.gather(mi.UInt32, points_of, at, active)
+
         slots = [start, start + 1, start + 2,
-                 dr.select(owned_r, start + 3, dr.gather(mi.UInt32, start, index_r, found_r) + 1),
-                 dr.select(owned_t, start + 3 + dr.select(owned_r, mi.UInt32(1), 0),
-                           dr.gather(mi.UInt32, start, index_t, found_t))]
+                 dr.select(owned_r, start + 3, start_of(index_r, found_r) + 1),
+                 dr.select(owned_t, start + 3 + dr.select(owned_r, mi.UInt32(1), 0), start_of(index_t, found_t))]
         new = [[dr.gather(mi.Float, channel, slot) for channel in points] for slot in slots]
         ok_new = [dr.gather(mi.Bool, finite, slot) for slot in slots]
         # Sample count: each distinct position once per pixel. A point on the edge shared
@@ -601,24 +604,24 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             shown = [_shown(new[_CODE_TO_NEW[code]]) for code in range(9)]
             for p, code in enumerate((0, 2, 6, 8)):
                 shown[code] = _shown(quad[p])
-            flags = dr.empty(mi.UInt32, 4 * n)
-            slot5 = dr.empty(mi.UInt32, 5 * n)
-            index = dr.arange(mi.UInt32, n)
+            mask = mi.UInt32(0)
             for q in range(4):
                 cx, cy = q & 1, q >> 1
                 codes = [(cx + a) + 3 * (cy + b) for b in (0, 1) for a in (0, 1)]
                 keep = _spread([shown[code] for code in codes]) > threshold
-                dr.scatter(flags, dr.select(keep, mi.UInt32(1), 0), 4 * index + q)
-            for k in range(5):
-                dr.scatter(slot5, slots[k], 5 * index + k)
+                mask |= dr.select(keep, mi.UInt32(1 << q), 0)
+            outputs += [mask, slots[3], slots[4]]
         dr.eval(outputs)
 
         # 5. Sum the additions of each pixel's run of squares (sorted by pixel).
-        _add_by_pixel(sums + [valid_n, count], pixel, outputs, o_n)
+        _add_by_pixel(sums + [valid_n, count], pixel, outputs[:nc + 2], o_n)
         if last_level:
             return None
 
         # 6. The sub-squares to split next (children follow their parent: key order).
+        mask, slot3, slot4 = outputs[nc + 2:]
+        child = dr.arange(mi.UInt32, 4 * n)
+        flags = (dr.gather(mi.UInt32, mask, child >> 2) >> (child & 3)) & 1
         sel, pos = _compact(flags)
         if sel is None:
             return None
@@ -629,7 +632,10 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             a, b = p & 1, p >> 1
             parent = q == p
             code = (cx + a) + 3 * (cy + b)
-            at = dr.gather(mi.UInt32, slot5, 5 * ps + dr.gather(mi.UInt32, mi.UInt32(_CODE_TO_NEW), code), ~parent)
+            k = dr.gather(mi.UInt32, mi.UInt32(_CODE_TO_NEW), code)
+            at = dr.select(k < 3, start_of(ps, ~parent) + k,
+                           dr.select(k == 3, dr.gather(mi.UInt32, slot3, ps, ~parent),
+                                     dr.gather(mi.UInt32, slot4, ps, ~parent)))
             child_quad.append([dr.select(parent, dr.gather(mi.Float, quad[p][c], ps),
                                          dr.gather(mi.Float, channel, at, ~parent))
                                for c, channel in enumerate(points)])
