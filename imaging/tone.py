@@ -576,8 +576,9 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     """
     levels = _levels(levels, high=65536)
     max_value = _positive(max_value, "max_value")
-    if _is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:
-        image = image.astype(np.float32)
+    if _is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
+        flat = np.ascontiguousarray(image).reshape(-1)
+        return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value)
     if not _is_uint8(image):
         tensor = as_tensor(image, channels=(1, 3))
         if tensor.ndim == 3 and tensor.shape[2] == 3:
@@ -697,17 +698,23 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
 
     tensor = as_tensor(image, channels=(1, 3))
     nch = tensor.shape[2] if tensor.ndim == 3 else 1
-    flat = tensor.array
-    bad = ~dr.isfinite(flat)
     count = dr.zeros(UInt32, 1)
-    dr.scatter_add(count, 1, UInt32(0), active=bad)
-    posinf = bad & (flat > 0)
-    x = dr.clip(dr.select(bad, 0.0, flat) * _opaque(2.0 ** exposure), 0.0, _HDR_MAX)
+    scale = _opaque(2.0 ** exposure)
+
+    def prepare(values: Float) -> tuple[Float, Float]:
+        """Sanitised, exposed, clamped channel and its +inf mask (counted); per pixel, so that
+        the whole operator is one pass over the (H, W, 3) data, not one per step."""
+        bad = ~dr.isfinite(values)
+        dr.scatter_add(count, 1, UInt32(0), active=bad)
+        return dr.clip(dr.select(bad, 0.0, values) * scale, 0.0, _HDR_MAX), bad & (values > 0)
+
     if nch == 3:
-        rgb = dr.unravel(Array3f, x)
-        channels = [rgb.x, rgb.y, rgb.z]
+        rgb = dr.unravel(Array3f, tensor.array)
+        prepared = [prepare(c) for c in (rgb.x, rgb.y, rgb.z)]
     else:
-        channels = [x]
+        prepared = [prepare(tensor.array)]
+    channels = [c for c, _ in prepared]
+    posinf = [p for _, p in prepared]
 
     def white_point(values: Float) -> Float:
         if white is not None:
@@ -727,7 +734,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         ratio = dr.select(lum > 0.0, mapped_l / lum, 0.0)
         mapped = [c * ratio for c in channels]
     elif operator == "reinhard_extended":
-        w = white_point(x)
+        w = white_point(channels[0] if nch == 1 else dr.maximum(dr.maximum(channels[0], channels[1]), channels[2]))
         inv_w2 = 1.0 / (w * w)
         mapped = [c * (1.0 + c * inv_w2) / (1.0 + c) for c in channels]
     elif operator == "hable":
@@ -744,9 +751,8 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         k = ACES_CONSTANTS
         mapped = [(c * (k["a"] * c + k["b"])) / (c * (k["c"] * c + k["d"]) + k["e"]) for c in channels]
 
-    display = [_encode(dr.clip(m, 0.0, 1.0)) * 255.0 for m in mapped]
+    display = [dr.select(inf, 255.0, _encode(dr.clip(m, 0.0, 1.0)) * 255.0) for m, inf in zip(mapped, posinf)]
     values = dr.ravel(Array3f(*display)) if nch == 3 else display[0]
-    values = dr.select(posinf, 255.0, values)
     return _finish(TensorXf(values, tensor.shape), count, "tonemap")
 
 

@@ -476,3 +476,15 @@ def test_uint8_equalize_is_two_passes_and_nothing_recompiles():
                  lambda: lut(image, np.arange(256)[::-1]), lambda: gamma(image, 1.9)):
         kernels = _kernels(lambda: a(call()))
         assert kernels and all(k["cache_hit"] for k in kernels)
+
+
+def test_tonemap_fixed_curves_are_one_pass():
+    """Sanitising, exposure, curve, sRGB and the +inf policy run in one kernel over the pixels."""
+    hdr = RNG.random((24, 40, 3), dtype=np.float32) * 8
+    hdr[0, 0, 1] = np.inf
+    for operator in ("clip", "aces", "hable"):
+        warned(tonemap, hdr, operator)
+        kernels = _kernels(lambda: warned(tonemap, hdr, operator))
+        assert [k["size"] for k in kernels] == [24 * 40]
+    result, messages = warned(tonemap, hdr, "aces")
+    assert a(result)[0, 0, 1] == 255.0 and "1 non-finite" in messages[0]
