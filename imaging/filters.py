@@ -307,7 +307,7 @@ def _finite_extrema(values: Float) -> tuple[float, float] | None:
     that cost about 3x a pass here.)
     """
     array = values.numpy().reshape(-1)
-    lanes = array.size // _REDUCE_WAYS
+    lanes = array.size // _REDUCE_WAYS // 16 * 16     # views share the base's alignment: <= 2 kernels per size
     pieces = []
     rest = array
     if lanes >= 1024:
@@ -356,6 +356,13 @@ def _rescale(values: Float, bounds: tuple[float, float] | None, mask: Bool | Non
     return scaled
 
 
+@functools.lru_cache(maxsize=256)
+def _opaque(value: float) -> Float:
+    """An opaque (evaluated, not a kernel constant) scalar, kept for reuse: kernels are not
+    recompiled per weight, and repeated calls do not launch a memset per weight."""
+    return dr.opaque(Float, value)
+
+
 # --- Public operations ------------------------------------------------------------------------
 def _weighted_sum(kernel: np.ndarray) -> tuple[list[tuple[int, int]], Callable[[Taps], tuple[Float]]]:
     """Taps and combination for a correlation kernel; weights are opaque (no recompilation)."""
@@ -366,7 +373,7 @@ def _weighted_sum(kernel: np.ndarray) -> tuple[list[tuple[int, int]], Callable[[
     def combine(taps: Taps) -> tuple[Float]:
         total = Float(0.0)
         for dy, dx in offsets:
-            total = dr.fma(taps[(dy, dx)], dr.opaque(Float, float(kernel[dy + ry, dx + rx])), total)
+            total = dr.fma(taps[(dy, dx)], _opaque(float(kernel[dy + ry, dx + rx])), total)
         return (total,)
 
     return offsets, combine
