@@ -144,12 +144,38 @@ def first_calls_subprocess(n: int, cold: bool) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def plot(rows, path, n):
+    """Horizontal bars of ours / peer per operation, the goal as a tick, below 1 = faster."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [r["name"] for r in rows]
+    ratios = [r["ours"] / (r["cv"][0] if r["cv"] else r["scipy"]) for r in rows]
+    colours = ["tab:gray" if r["goal"] is None else ("tab:green" if q <= r["goal"] else "tab:red")
+               for r, q in zip(rows, ratios)]
+    fig, ax = plt.subplots(figsize=(8, 0.42 * len(rows) + 1.2))
+    y = np.arange(len(rows))[::-1]
+    ax.barh(y, ratios, color=colours)
+    for yi, r in zip(y, rows):
+        if r["goal"] is not None:
+            ax.plot([r["goal"]] * 2, [yi - 0.4, yi + 0.4], color="black", lw=2)
+    ax.axvline(1.0, color="gray", ls=":")
+    ax.set_yticks(y, names)
+    ax.set_xscale("log")
+    ax.set_xlabel("time ours / OpenCV best of 1-2 threads (median 7x7: / scipy); black tick = goal")
+    ax.set_title(f"imaging_spatial, {n}x{n} float32 (green: goal met, red: not met)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--size", type=int, default=2048)
     parser.add_argument("--repeat", type=int, default=9)
     parser.add_argument("--peer-repeat", type=int, default=2, help="repeats of scipy / scikit-image")
     parser.add_argument("--only", default="", help="run only cases whose name contains this")
+    parser.add_argument("--plot", default="", help="save a bar chart of ours / OpenCV with the goals here")
     parser.add_argument("--first-call-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     n = args.size
@@ -207,6 +233,8 @@ def main():
         print(f"| {r['name']} | {r['ours'] * 1e3:.2f} ({r['ours_min'] * 1e3:.2f}) | {cv_text} | {sp_text} | "
               f"{sk_text} | {ratio:.2f}x{'' if r['cv'] else ' (scipy)'} | {goal} | "
               f"{r['kernels']} ({r['exec_ms']:.2f}) | {first} |")
+    if args.plot:
+        plot(rows, args.plot, n)
     total = sum(r["recompiles"] for r in rows)
     print(f"\nKernels compiled again during steady-state calls: {total} (0 = no per-call recompiles).")
 
