@@ -64,10 +64,15 @@ u8 = test_image({size})
 for name, fn in (("floyd_steinberg", lambda: d.floyd_steinberg(image)),
                  ("ordered (float32)", lambda: d.ordered(image)),
                  ("ordered (uint8)", lambda: d.ordered(u8))):
-    times = []
-    for _ in range(4):
+    times, compile_ms = [], 0.0
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    for k in range(7):
         t0 = time.perf_counter(); out = fn(); dr.eval(out); dr.sync_thread(); times.append(time.perf_counter() - t0)
-    result[name] = (times[0], float(np.median(times[1:])))
+        if k == 0:  # LLVM code generation + compilation (0 on a cache hit) of the first call's kernels
+            compile_ms = sum((e.get("codegen_time") or 0) + (e.get("backend_time") or 0)
+                             for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT)
+    result[name] = (times[0], float(np.median(times[1:])), compile_ms)
 print(json.dumps(result))
 """
     env = dict(os.environ, HOME=home)
@@ -75,12 +80,55 @@ print(json.dumps(result))
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def load_revision(rev: str):
+    """imaging/dither.py as of git revision ``rev``, imported as a separate module."""
+    import importlib.util
+
+    source = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:imaging/dither.py"], capture_output=True,
+                            text=True, check=True).stdout
+    spec = importlib.util.spec_from_loader("imaging._dither_before", loader=None)
+    module = importlib.util.module_from_spec(spec)
+    module.__file__ = str(ROOT / "imaging" / "dither.py")  # its data directory
+    sys.modules[spec.name] = module
+    exec(compile(source, f"{rev}:imaging/dither.py", "exec"), module.__dict__)
+    return module
+
+
+def plot(results: list[dict], path: Path, size: int) -> None:
+    """Horizontal bars of ours / peer (log scale) with the goals marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in results if r["best"]]
+    fig, ax = plt.subplots(figsize=(8, 0.32 * len(rows) + 1.2))
+    ratios = [r["ratio"] for r in rows]
+    colours = ["tab:green" if ("compare" in r["best"] and x <= 0.5) or ("Pillow" in r["best"] and x <= 1.0)
+               or "before" in r["best"] else "tab:red" for r, x in zip(rows, ratios)]
+    ax.barh(range(len(rows)), ratios, color=colours)
+    ax.set_yticks(range(len(rows)), [f"{r['label']}  [{r['best']}]" for r in rows], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    for x, style, label in ((1.0, "-", "1.0x (goal for error diffusion)"), (0.5, "--", "0.5x (goal for ordered)")):
+        ax.axvline(x, color="k", linestyle=style, linewidth=0.8, label=label)
+    ax.set_xlabel("ours / peer time (median; lower is better)")
+    ax.set_title(f"imaging.dither, {size}x{size}")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=2048)
     parser.add_argument("--repeats", type=int, default=21)
     parser.add_argument("--only", choices=("all", "ordered", "diffusion"), default="all")
+    parser.add_argument("--before", metavar="REV", help="also time imaging/dither.py as of git revision REV "
+                        "(rows 'vs before': this tree's time over REV's, interleaved)")
     parser.add_argument("--json", type=Path, help="also write the numbers as JSON")
+    parser.add_argument("--plot", type=Path, help="also draw ours / peer per row (PNG)")
     args = parser.parse_args()
 
     import cv2
@@ -157,6 +205,22 @@ def main() -> int:
                      None, None))
         rows.append(("floyd_steinberg levels=4", ours(d.floyd_steinberg, tensor, levels=4), pillow, None, None))
 
+    if args.before:
+        old = load_revision(args.before)
+        tag = f"{args.before[:10]}"
+        for label, mine, theirs in (
+                ("ordered 4x4 (float32)", ours(d.ordered, tensor), ours(old.ordered, tensor)),
+                ("ordered 4x4 (uint8)", ours(d.ordered, u8), ours(old.ordered, u8)),
+                ("blue_noise (float32)", ours(d.blue_noise, tensor), ours(old.blue_noise, tensor)),
+                ("ordered 4x4 levels=4 (float32)", ours(d.ordered, tensor, levels=4),
+                 ours(old.ordered, tensor, levels=4)),
+                ("pattern 4x4 (float32)", ours(d.pattern, tensor), ours(old.pattern, tensor)),
+                ("halftone n=3 (float32)", ours(d.halftone, tensor, 3), ours(old.halftone, tensor, 3)),
+                ("floyd_steinberg (float32)", ours(d.floyd_steinberg, tensor), ours(old.floyd_steinberg, tensor)),
+                ("floyd_steinberg (uint8)", ours(d.floyd_steinberg, u8), ours(old.floyd_steinberg, u8))):
+            assert np.array_equal(np.asarray(mine()), np.asarray(theirs())), label
+            rows.append((f"{label} vs before", mine, {f"before ({tag})": (None, theirs)}, None, None))
+
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     results = []
     threads_before = cv2.getNumThreads()
@@ -166,10 +230,10 @@ def main() -> int:
             if setup:
                 setup()
             fn()
-        dr.kernel_history()
         t_mine, t_kernel, launches = [], [], []
         t_peer = {name: [] for name in peers}
         for _ in range(repeats):
+            dr.kernel_history()  # drop the peers' launches (the 'before' peer is Dr.Jit too)
             t0 = time.perf_counter()
             mine()
             t_mine.append(time.perf_counter() - t0)
@@ -211,12 +275,16 @@ def main() -> int:
         print(f"| {r['label']} | {r['ours']:.2f} | {r['kernel']:.2f} | {r['launches']} | {peer} | {moved} |")
     print("\nall peer medians (ms): " + "; ".join(
         f"{r['label']}: " + ", ".join(f"{k} {v:.2f}" for k, v in r["peers"].items()) for r in results if r["peers"]))
-    print("\n| first call (ms) | cold cache | warm cache | steady |")
-    print("|---|---:|---:|---:|")
+    print("\n| first call in a fresh process (ms) | cold cache | of which LLVM codegen + compile | warm cache "
+          "| of which codegen + compile | steady (median of 6) |")
+    print("|---|---:|---:|---:|---:|---:|")
     for name in cold:
-        print(f"| {name} | {cold[name][0] * 1e3:.1f} | {warm[name][0] * 1e3:.1f} | {warm[name][1] * 1e3:.2f} |")
+        print(f"| {name} | {cold[name][0] * 1e3:.1f} | {cold[name][2]:.1f} | {warm[name][0] * 1e3:.1f} "
+              f"| {warm[name][2]:.1f} | {warm[name][1] * 1e3:.2f} |")
     if args.json:
         args.json.write_text(json.dumps({"rows": results, "cold": cold, "warm": warm}, indent=1))
+    if args.plot:
+        plot(results, args.plot, size)
     return 0
 
 
