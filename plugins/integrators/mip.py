@@ -191,6 +191,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if self.precision not in ("auto", "half", "single"):
             raise ValueError(f"mip: precision: expected auto, half or single, got {self.precision!r}")
         self._background = float(props["background"]) if "background" in props else None
+        self.fast_axis = bool(props.get("fast_axis", True))
+        self.skip_bricks = bool(props.get("skip_bricks", True))
+        #: Which algorithm the last projection used: "columns", "bricks" or "march".
+        self.last_path = None
         self.to_world = _scalar_transform(props.get("to_world", mi.ScalarTransform4f()))
         spacing = props.get("spacing", None)
         if spacing is not None:
@@ -222,6 +226,8 @@ class MIPIntegrator(mi.SamplingIntegrator):
         filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
         self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
         self.volume = volume
+        self._finite = None  # whether the stored voxels are all finite (computed when needed)
+        self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
 
     @property
     def background(self) -> float:
@@ -255,15 +261,159 @@ class MIPIntegrator(mi.SamplingIntegrator):
         """Raw projected value along each ray and whether it met a (non-NaN) sample."""
         if self.volume is None:
             raise RuntimeError("mip: no volume; give a 'filename' or call set_volume()")
+        if self.fast_axis and active is True:
+            result = self._columns(ray)
+            if result is not None:
+                self.last_path = "columns"
+                return result
+        self.last_path = "march"
         return self._march(ray, active)
 
-    @dr.syntax
-    def _march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
+    # ----------------------------------------------------------------------------------------
+    def _storage(self):
+        """The texture's flat (Z, Y, X) storage (Float16 or Float, shared, no copy)."""
+        return self._tex.texture.tensor().array
+
+    def storage_finite(self) -> bool:
+        """Whether every stored voxel is finite (no NaN / inf); computed once per volume."""
+        if self._finite is None:
+            data = self.volume.data
+            if np.issubdtype(data.dtype, np.integer) and self._tex.exact:
+                self._finite = True  # integers stored exactly: finite by construction
+            else:
+                flat = self._storage().numpy().reshape(data.shape[0], -1)
+                self._finite = all(bool(np.isfinite(flat[z:z + 64]).all()) for z in range(0, len(flat), 64))
+        return self._finite
+
+    def _columns(self, ray: mi.Ray3f):
+        """Axis-aligned fast path: reduce voxel columns of the storage instead of marching.
+
+        Used only when it provably gives the march's result bit for bit, checked on the
+        actual rays with the march's own float32 arithmetic:
+
+        * every ray's texture-space direction has one nonzero component ``a`` (the same
+          value for all rays), its origin along ``a`` and its ``maxt`` are shared, so all
+          rays that hit have the same sample parameters along ``a``;
+        * the sample positions along ``a`` (the march's ``fma`` sequence, mapped by the
+          texture's own index arithmetic) visit every voxel of the column:
+          - nearest, mip/minip: every voxel index 0..n-1 is sampled (and no other);
+          - nearest, average: every voxel is sampled the same number m of times (m <= 8),
+            so the march's running sum adds each voxel m times in ray order;
+          - trilinear, mip/minip: every sample lies exactly on a voxel centre (weight 0)
+            or exactly half-way between two (weights 1/2, 1/2), every centre is sampled,
+            the rays pass exactly through voxel-column centres across the axis, and the
+            volume has no NaN/inf. A centre sample returns the voxel, a half-way sample
+            ``fma(b, 1/2, a / 2)`` lies between its two voxels, so the max (min) over the
+            samples is the column's max (min). Average with trilinear has no such identity
+            and always marches.
+
+        Returns ``None`` (march) when a condition fails.
+        """
+        trilinear = self.interpolation == "trilinear"
+        if trilinear and (self.mode == "average" or not self.storage_finite()):
+            return None
         to_tex = self._world_to_texture()
-        o = to_tex @ ray.o
-        d = to_tex @ ray.d
+        o, d = to_tex @ ray.o, to_tex @ ray.d
+        maxt = mi.Float(ray.maxt)
+        dr.eval(o, d, maxt)
+        on, dn, mn = np.asarray(o), np.asarray(d), np.asarray(maxt)
+        if on.ndim != 2 or on.shape[1] == 0:
+            return None
+        moving = np.flatnonzero(np.any(dn != 0, axis=1))
+        if len(moving) != 1:
+            return None
+        a = int(moving[0])
+        if not (np.all(dn[a] == dn[a, 0]) and np.all(on[a] == on[a, 0]) and np.all(mn == mn[0])):
+            return None
+        b, c = [k for k in range(3) if k != a]
+        nx, ny, nz = self.volume.shape_xyz
+        res = (nx, ny, nz)
+        # one representative ray: inside across the axis, so its slab test equals every hit ray's
+        rep_o = [0.5, 0.5, 0.5]
+        rep_o[a] = float(on[a, 0])
+        rep_d = [0.0, 0.0, 0.0]
+        rep_d[a] = float(dn[a, 0])
+        ro, rd = mi.Point3f(*rep_o), mi.Vector3f(*rep_d)
+        t0, t1, hit = self._clip(ro, rd, mi.Float(float(mn[0])))
+        segments, dt = self._schedule(rd, t0, t1, hit)
+        average = self.mode == "average"
+        dr.eval(t0, segments, dt, hit)
+        if not bool(hit[0]):
+            return None
+        count = int(segments[0]) + (0 if average else 1)
+        if count > 1 << 22:
+            return None
+        k = dr.arange(mi.Float, count) + (0.5 if average else 0.0)
+        t = dr.fma(k, dt, t0)
+        p = dr.fma(dr.opaque(mi.Float, rep_d[a]), t, dr.opaque(mi.Float, rep_o[a]))
+        n_a = res[a]
+        res_a = dr.opaque(mi.Float, float(n_a))
+        if trilinear:
+            pos_f = dr.fma(p, res_a, -0.5)
+        else:
+            pos_f = p * res_a
+        pos_i = mi.Int32(dr.floor(pos_f))
+        frac = pos_f - mi.Float(pos_i)
+        index = dr.clip(pos_i, 0, n_a - 1)
+        dr.eval(frac, index)
+        frac, index = frac.numpy(), index.numpy()
+        repeats = 1
+        if trilinear:
+            if not np.all((frac == 0.0) | (frac == 0.5)):
+                return None
+            if not np.array_equal(np.unique(index[frac == 0.0]), np.arange(n_a)):
+                return None
+        elif average:
+            hits = np.bincount(index, minlength=n_a)
+            repeats = int(hits[0])
+            if not (1 <= repeats <= 8 and np.all(hits == repeats)):
+                return None
+        elif not np.array_equal(np.unique(index), np.arange(n_a)):
+            return None
+        # per ray: the column it runs through (the texture's index arithmetic across the axis)
+        inside = mi.Bool(True)
+        column = mi.Int32(0)
+        exact = mi.Bool(True)
+        for axis, scale in ((c, res[b]), (b, 1)):
+            q = o[axis]
+            inside &= (q >= 0) & (q <= 1)
+            n_q = dr.opaque(mi.Float, float(res[axis]))
+            q_f = dr.fma(q, n_q, -0.5) if trilinear else q * n_q
+            q_i = mi.Int32(dr.floor(q_f))
+            exact &= ~inside | (q_f == mi.Float(q_i))
+            column = column + dr.clip(q_i, 0, res[axis] - 1) * scale
+        if trilinear:
+            if not bool(dr.all(exact)):
+                return None
+        values, seen = self._column_values(a, reverse=rep_d[a] < 0, repeats=repeats)
+        column = mi.UInt32(dr.select(inside, column, 0))
+        acc = dr.gather(mi.Float, values, column, inside)
+        seen = dr.gather(mi.UInt32, seen, column, inside)
+        valid = inside & (seen > 0)
+        offset = dr.opaque(mi.Float, self._tex.offset)
+        if average:
+            acc = acc / mi.Float(dr.maximum(seen, 1))
+        value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
+        return value, valid
+
+    def _column_values(self, axis: int, *, reverse: bool, repeats: int):
+        """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
+        from plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+
+        shape = self.volume.data.shape
+        storage = self._storage()
+        finite = self.storage_finite()
+        if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
+            words = mi.UInt32(storage.numpy().view(np.uint32))  # the same memory, two halves a word
+            values = mi.Float(reduce_half_keys(words, shape, axis, self.mode))
+            return values, dr.full(mi.UInt32, 1, dr.width(values))
+        return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
+                              has_nan=not finite)
+
+    def _clip(self, o, d, maxt, active=True):
+        """Parametric entry/exit ``(t0, t1, hit)`` of texture-space rays against the closed unit box."""
         t0 = dr.zeros(mi.Float, dr.width(o))
-        t1 = mi.Float(ray.maxt)
+        t1 = mi.Float(maxt)
         for i in range(3):  # slab test against [0, 1]^3 (closed box)
             inv = dr.rcp(d[i])
             ta, tb = -o[i] * inv, (1.0 - o[i]) * inv
@@ -273,6 +423,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
             far = dr.select(parallel, dr.select(inside, dr.inf, -dr.inf), dr.maximum(ta, tb))
             t0, t1 = dr.maximum(t0, near), dr.minimum(t1, far)
         hit = mi.Bool(active) & (t0 <= t1) & dr.isfinite(t1)
+        return t0, t1, hit
+
+    def _schedule(self, d, t0, t1, hit):
+        """Segment count and parametric step ``(segments, dt)`` of the march (0 segments on a miss)."""
         extent = dr.opaque(mi.Vector3f, self.volume.extent)
         step = dr.opaque(mi.Float, self.step * min(self.volume.spacing))
         length = (t1 - t0) * dr.norm(mi.Vector3f(d) * extent)  # physical length inside the box
@@ -281,6 +435,15 @@ class MIPIntegrator(mi.SamplingIntegrator):
         segments = dr.maximum(dr.ceil(length / step - 1e-3), 1.0)
         segments = dr.select(hit, dr.minimum(segments, 2.0**24), 0.0)
         dt = (t1 - t0) / segments
+        return segments, dt
+
+    @dr.syntax
+    def _march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
+        to_tex = self._world_to_texture()
+        o = to_tex @ ray.o
+        d = to_tex @ ray.d
+        t0, t1, hit = self._clip(o, d, ray.maxt, active)
+        segments, dt = self._schedule(d, t0, t1, hit)
         average = self.mode == "average"
         count = mi.UInt32(segments) if average else mi.UInt32(segments) + dr.select(hit, 1, 0)
         shift = 0.5 if average else 0.0

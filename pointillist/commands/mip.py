@@ -90,11 +90,14 @@ def _sensor_dict(mi, extent, axes, image_size, half_w, half_h, perspective: floa
     width, height = image_size
     radius = float(np.linalg.norm(extent)) / 2
     if perspective is None:
-        distance = radius * 2 + 1.0
+        # camera distance and near clip are powers of two: for axis-aligned views of boxes with
+        # power-of-two sides the ray parameters and sample positions are then exact floats, so
+        # half-voxel steps land exactly on voxel centres (see the mip integrator's fast path)
+        distance = 2.0 ** math.ceil(math.log2(radius * 2 + 1.0))
         to_world = (mi.ScalarTransform4f().look_at(origin=(-forward * distance).tolist(), target=[0, 0, 0],
                                                     up=up.tolist())
                     @ mi.ScalarTransform4f().scale([half_w, half_h * width / height, 1.0]))
-        sensor = {"type": "orthographic", "to_world": to_world, "near_clip": 1e-3 * distance,
+        sensor = {"type": "orthographic", "to_world": to_world, "near_clip": distance / 1024.0,
                   "far_clip": 4 * distance}
     else:
         distance = radius / math.sin(math.radians(perspective) / 2)

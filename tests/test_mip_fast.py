@@ -1,0 +1,180 @@
+"""Fast paths of the ``mip`` integrator: bit-for-bit equal to the plain ray march.
+
+The axis-aligned column reduction and the brick skipping are optimisations only: every test
+here renders the same rays with the fast path on and off (``fast_axis`` / ``skip_bricks``)
+and demands identical float32 bits, and checks which path actually ran.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointillist.volumes import Volume, shepp_logan_phantom
+
+RNG = np.random.default_rng(80)
+
+VOLUMES = {
+    "random_float": RNG.random((5, 6, 7)).astype(np.float32),
+    "phantom_int16": shepp_logan_phantom((12, 10, 16)),
+    "odd_int16": RNG.integers(-1000, 1000, (7, 5, 9)).astype(np.int16),
+    "pow2_int16": RNG.integers(-1000, 1000, (8, 32, 16)).astype(np.int16),
+    "pow2_float": RNG.random((16, 8, 4)).astype(np.float32),
+    "nan": np.where(RNG.random((6, 6, 8)) < 0.2, np.nan, RNG.random((6, 6, 8))).astype(np.float32),
+}
+
+
+def _pair(mi, volume, *, spacing=(1.0, 1.0, 1.0), **props):
+    """(fast, plain) integrators holding the same volume."""
+    out = []
+    for fast in (True, False):
+        integrator = mi.load_dict({"type": "mip", "fast_axis": fast, "skip_bricks": fast, **props})
+        integrator.set_volume(Volume(volume, spacing))
+        out.append(integrator)
+    return out
+
+
+def _project_both(mi, volume, props, spacing=(1.0, 1.0, 1.0), **view):
+    from pointillist.commands.mip import project_volume
+
+    fast, plain = _pair(mi, volume, spacing=spacing, **props)
+    a, _ = project_volume(Volume(volume, spacing), integrator=fast, **view)
+    b, _ = project_volume(Volume(volume, spacing), integrator=plain, **view)
+    assert plain.last_path == "march"
+    return a, b, fast.last_path
+
+
+def _same_bits(a, b):
+    return a.shape == b.shape and np.array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+@pytest.mark.parametrize("name", sorted(VOLUMES))
+@pytest.mark.parametrize("view", ["axial", "coronal", "sagittal"])
+@pytest.mark.parametrize("mode", ["mip", "minip", "average"])
+def test_nearest_columns_equal_the_march_bit_for_bit(mi, name, view, mode):
+    props = {"mode": mode, "interpolation": "nearest", "background": -3.0}
+    for native, step in ((True, 0.5), (False, 1.0), (False, 0.3), (True, 2.5)):
+        a, b, path = _project_both(mi, VOLUMES[name], dict(props, step=step), view=view, native=native,
+                                   size=(23, 17))
+        assert _same_bits(a, b), (native, step)
+        # nearest mip/minip: a step clearly below one voxel samples every voxel of the column
+        # (step 1.0 may skip one by float rounding: then it marches); average needs the same
+        # number of samples in every voxel (step 0.5 of whole voxels: 2); 2.5 skips voxels
+        if step == 0.5 or (step == 0.3 and mode != "average"):
+            assert path == "columns", (native, step)
+        if step == 2.5:
+            assert path == "march"
+
+
+@pytest.mark.parametrize("name", sorted(VOLUMES))
+@pytest.mark.parametrize("mode", ["mip", "minip", "average"])
+def test_trilinear_columns_only_where_samples_hit_voxel_centres(mi, name, mode):
+    props = {"mode": mode, "interpolation": "trilinear", "background": -3.0}
+    for view in ("axial", "coronal", "sagittal"):
+        for native, step in ((True, 0.5), (True, 0.3), (False, 0.5)):
+            a, b, path = _project_both(mi, VOLUMES[name], dict(props, step=step), view=view,
+                                       native=native, size=(23, 17))
+            assert _same_bits(a, b), (view, native, step)
+            # exact centres only with power-of-two sizes across the view (pixel centres are
+            # then exact floats), native size, half-voxel steps, finite data, not average
+            expected = ("columns" if name.startswith("pow2") and native and step == 0.5 and mode != "average"
+                        else "march")
+            assert path == expected, (view, native, step)
+
+
+def test_trilinear_native_columns_equal_numpy_max_exactly(mi):
+    vol = VOLUMES["pow2_int16"]
+    from pointillist.commands.mip import project_volume
+
+    for view, axis in (("axial", 0), ("coronal", 1), ("sagittal", 2)):
+        image, integrator = project_volume(vol, view=view, native=True, interpolation="trilinear")
+        assert integrator.last_path == "columns"
+        expected = vol.max(axis=axis).astype(np.float32)
+        np.testing.assert_array_equal(image, expected if axis == 0 else expected[::-1])
+
+
+def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
+    vol = VOLUMES["phantom_int16"]
+    a, b, path = _project_both(mi, vol, {"interpolation": "nearest"}, spacing=(0.7, 1.3, 2.0), view="coronal",
+                               native=True)
+    assert path == "columns" and _same_bits(a, b)
+    a, b, path = _project_both(mi, vol, {"interpolation": "nearest"}, spacing=(0.7, 1.3, 2.0), view="axial",
+                               size=(40, 31))
+    assert path == "columns" and _same_bits(a, b)
+
+
+@pytest.mark.parametrize("nx", [16, 9])
+def test_half_key_and_float_reductions_equal_numpy(mi, nx):
+    # nx even: packed float16 pairs and integer keys; nx odd: one float16 gather a voxel
+    from plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+
+    vol = RNG.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
+    storage = mi.Float16(vol.ravel())
+    for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
+        for mode, reduce in (("mip", np.max), ("minip", np.min)):
+            expected = reduce(vol, axis=np_axis).astype(np.float32)
+            expected = expected.ravel()  # columns: (z, y), (z, x) or (y, x), last index fastest
+            acc, seen = reduce_columns(storage, vol.shape, axis, mode, has_nan=False)
+            np.testing.assert_array_equal(np.asarray(acc), expected)
+            if nx % 2 == 0:
+                words = mi.UInt32(vol.view(np.uint32).ravel())
+                np.testing.assert_array_equal(reduce_half_keys(words, vol.shape, axis, mode, chunk=8), expected)
+    with pytest.raises(ValueError, match="even"):
+        reduce_half_keys(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
+
+
+def test_half_keys_order_every_finite_float16(mi):
+    from plugins.integrators._mip_accel import _decode_keys, _half_key
+
+    bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
+    values = bits.view(np.float16)
+    bits = bits[np.isfinite(values)]
+    pairs = np.stack([bits, bits[::-1]], axis=1).ravel().view(np.uint32)  # (a, b) in one word
+    lo, hi = (np.asarray(k) for k in _half_key(mi.UInt32(pairs)))
+    finite = bits.view(np.float16).astype(np.float64)
+    order = np.lexsort((~np.signbit(finite), finite))  # by value, -0 before +0 (IEEE maximum)
+    sorted_values = bits.view(np.float16)[order].astype(np.float64)
+    keys = lo[order]
+    # keys rise with the value (strictly, except -0 < +0 which are equal values)
+    assert np.all(np.diff(keys.astype(np.int64)) > 0)
+    assert np.all(np.diff(sorted_values) >= 0)
+    np.testing.assert_array_equal(_decode_keys(lo), bits.view(np.float16).astype(np.float32))
+    np.testing.assert_array_equal(_decode_keys(hi), bits[::-1].view(np.float16).astype(np.float32))
+
+
+def test_views_that_are_not_axis_aligned_columns_fall_back_to_the_march(mi):
+    vol = VOLUMES["phantom_int16"]
+    fast, plain = _pair(mi, vol, interpolation="nearest", skip_bricks=False)
+    fast.skip_bricks = False
+    from pointillist.commands.mip import project_volume
+
+    a, _ = project_volume(vol, integrator=fast, view=None, azimuth=30.0, elevation=0.0, size=(16, 16))
+    assert fast.last_path == "march"
+    a, _ = project_volume(vol, integrator=fast, view="axial", size=(16, 16), perspective=40.0)
+    assert fast.last_path == "march"
+    b, _ = project_volume(vol, integrator=plain, view="axial", size=(16, 16), perspective=40.0)
+    assert _same_bits(a, b)
+    # a camera inside the box does not see whole columns
+    o = mi.Point3f([0.5, -1.5], [0.5, 0.5], [0.0, 0.0])
+    ray = mi.Ray3f(o, mi.Vector3f(0, 0, 1))
+    a, _ = fast.project_rays(ray)
+    assert fast.last_path == "march"
+    b, _ = plain.project_rays(ray)
+    assert _same_bits(np.asarray(a), np.asarray(b))
+
+
+def test_render_with_several_samples_per_pixel_uses_the_columns(mi):
+    from pointillist.commands.mip import _sensor_dict, view_axes, view_frame
+
+    vol = VOLUMES["odd_int16"]
+    axes = view_axes("coronal")
+    volume = Volume(vol)
+    size, hw, hh = view_frame(volume.extent, axes, size=(20, 12))
+    sensor = _sensor_dict(mi, np.asarray(volume.extent), axes, size, hw, hh, None)
+    sensor["sampler"]["sample_count"] = 4
+    scene = mi.load_dict({"type": "scene", "sensor": sensor})
+    fast, plain = _pair(mi, vol, interpolation="nearest", window="0,1000")
+    a = np.asarray(fast.render(scene, seed=3))
+    assert fast.last_path == "columns"
+    b = np.asarray(plain.render(scene, seed=3))
+    assert _same_bits(a, b)
