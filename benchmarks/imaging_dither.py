@@ -119,7 +119,7 @@ def plot(results: list[dict], path: Path, size: int) -> None:
     ax.set_xscale("log")
     for x, style, label in ((1.0, "-", "1.0x (goal for error diffusion)"), (0.5, "--", "0.5x (goal for ordered)")):
         ax.axvline(x, color="k", linestyle=style, linewidth=0.8, label=label)
-    ax.set_xlabel("ours / peer time (median; lower is better). green/red: goal met/missed; "
+    ax.set_xlabel("ours / peer time (median; lower is better)\ngreen/red: goal met/missed; "
                   "grey: copy floor; blue: vs older revision", fontsize=7)
     ax.set_title(f"imaging.dither, {size}x{size}")
     ax.legend(fontsize=7, loc="lower right")
