@@ -193,3 +193,56 @@ def reduce_half_keys(words, shape_zyx, axis: int, mode: str, *, chunk: int = KEY
     keys = np.empty(2 * pairs, np.uint32)
     keys[0::2], keys[1::2] = klo.numpy(), khi.numpy()  # pair p holds columns 2p, 2p + 1
     return _decode_keys(keys)
+
+
+def _dilated_block_reduce(array: np.ndarray, axis: int, brick: int, fn) -> np.ndarray:
+    """Reduce ``array`` along ``axis`` over blocks of ``brick`` widened by one element each side."""
+    n = array.shape[axis]
+    blocks = -(-n // brick)
+    pad = blocks * brick - n
+    if pad:
+        widths = [(0, 0)] * array.ndim
+        widths[axis] = (0, pad)
+        array = np.pad(array, widths, mode="edge")  # repeats the last element: no new extremes
+    shape = array.shape[:axis] + (blocks, brick) + array.shape[axis + 1:]
+    out = fn.reduce(array.reshape(shape), axis=axis + 1)
+    first = np.take(array, np.arange(blocks) * brick, axis=axis)  # first element of each block
+    last = np.take(array, np.arange(blocks) * brick + brick - 1, axis=axis)
+    lead = [slice(None)] * array.ndim
+    if blocks > 1:
+        lo, hi = list(lead), list(lead)
+        lo[axis], hi[axis] = slice(1, None), slice(None, -1)
+        out[tuple(lo)] = fn(out[tuple(lo)], last[tuple(hi)])  # one voxel of the previous block
+        out[tuple(hi)] = fn(out[tuple(hi)], first[tuple(lo)])  # one voxel of the next block
+    return out
+
+
+def brick_grid(data: np.ndarray, *, brick: int = BRICK, offset: float = 0.0, slab: int = 64):
+    """Per-brick maximum and minimum of a ``(Z, Y, X)`` volume, each brick dilated by one voxel.
+
+    Brick ``(bz, by, bx)`` covers voxels ``[b * brick - 1, (b + 1) * brick]`` (clipped) along
+    each axis: every voxel a trilinear or nearest lookup can touch from a point inside the
+    brick's box, or within half a voxel of it. NaN voxels are ignored (a brick of NaN only
+    gets max -inf and min +inf). Values are ``data - offset`` (the texture's storage units),
+    float64. Reads ``data`` in slabs of ``slab`` slices (no full-size temporary).
+
+    Returns
+    -------
+    (maximum, minimum) : numpy.ndarray, shape ``(ceil(nz / brick), ceil(ny / brick), ceil(nx / brick))``
+    """
+    nz = data.shape[0]
+    partial = {np.fmax: [], np.fmin: []}
+    for z in range(0, nz, slab):
+        block = data[z:z + slab]
+        for fn in partial:
+            partial[fn].append(_dilated_block_reduce(block, 2, brick, fn))
+    result = []
+    for fn, parts in partial.items():
+        reduced = np.concatenate(parts, axis=0)
+        reduced = _dilated_block_reduce(reduced, 1, brick, fn)
+        reduced = _dilated_block_reduce(reduced, 0, brick, fn).astype(np.float64) - offset
+        result.append(reduced)
+    maximum, minimum = result
+    empty = np.isnan(maximum)
+    maximum[empty], minimum[empty] = -np.inf, np.inf
+    return maximum, minimum
