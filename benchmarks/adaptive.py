@@ -1,17 +1,21 @@
 """Adaptive super-sampling against uniform ``jitter`` on scenes/edges.xml, in one run.
 
-Goal (issue 9): adaptive reaches the RMSE of uniform 16 spp ``jitter`` in at most 50%
+Goals (issue 9): adaptive reaches the RMSE of uniform 16 spp ``jitter`` in at most 50%
 of its time, and the scheduling overhead (render time not spent tracing rays) is below
 20% of the adaptive render.
 
-For every configuration: the first call (JIT compile reported apart, in-process kernel
-cache cold; the ``~/.drjit`` disk cache may be warm), then the median wall time of
-``--repeats`` further renders with other seeds, each evaluated (``timed_render``
-forces ``dr.eval`` + ``dr.sync_thread``). Errors are RMSE against a high-spp
-``stratified`` reference (Mitsuba's own sampler, ``pointillist.compare``'s definition).
-The adaptive integrator's own split of each render (seconds spent tracing: ray
-generation, the nested integrator and evaluating its kernel, vs everything else)
-gives the overhead.
+Two nested integrators: the scene's ``direct`` (cheap rays: ~25 ms for a whole 16 spp
+render, so fixed per-level costs weigh most) and ``path`` with ``max_depth`` 8 (the
+issue's "wrapping a nested integrator", where ray tracing dominates). For every
+configuration: a first call (JIT compile reported apart; in-process kernel cache cold,
+the ``~/.drjit`` disk cache may be warm), then ``--repeats`` rounds in which every
+configuration renders once with a new seed, in rotating order, so that load from
+other processes hits all of them alike; times are medians over the rounds, each render
+evaluated (``timed_render``: ``dr.eval`` + ``dr.sync_thread``). Errors are RMSE against
+a high-spp ``stratified`` reference (``pointillist.compare``'s definition), averaged
+over the rounds. The adaptive integrator's own split of each render (seconds tracing:
+ray generation, the nested integrator and evaluating that kernel, vs everything else)
+gives the scheduling overhead; "launches" counts JIT kernel launches per render.
 
 Run::
 
@@ -32,8 +36,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 JITTER_SPP = (4, 8, 16, 32)
-#: (threshold, max_depth, min_depth)
-ADAPTIVE = [(t, d, m) for m, d in ((0, 3), (0, 4), (1, 2), (1, 3), (1, 4)) for t in (32.0, 16.0, 8.0, 4.0)]
+#: (threshold, min_depth, max_depth) per nested integrator.
+ADAPTIVE = {
+    "direct": [(t, m, d) for m, d in ((0, 3), (1, 2), (1, 3), (1, 4)) for t in (128.0, 64.0, 32.0, 16.0)],
+    "path8": [(t, m, d) for m, d in ((0, 3), (1, 2), (1, 3)) for t in (128.0, 64.0, 16.0)],
+}
 
 
 def main(argv=None) -> int:
@@ -41,7 +48,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", default=str(ROOT / "scenes" / "edges.xml"))
     parser.add_argument("--res", type=int, default=None, help="override the scene's resolution")
     parser.add_argument("--reference-spp", type=int, default=1024)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--nested", default="direct,path8", help="direct, path8 or both")
     parser.add_argument("--plot", default=str(ROOT / "benchmarks" / "adaptive.png"))
     args = parser.parse_args(argv)
 
@@ -51,110 +59,126 @@ def main(argv=None) -> int:
     import drjit as dr
     from tqdm import tqdm
 
-    from pointillist.compare import (METHODS, REFERENCE_SEED, REFERENCE_SAMPLER, image_errors,
-                                     load_configured_scene)
+    from pointillist.compare import METHODS, REFERENCE_SAMPLER, REFERENCE_SEED, image_errors, load_configured_scene
     from pointillist.scene import timed_render
 
     params = {"res": str(args.res)} if args.res else {}
-    reference_scene = load_configured_scene(args.scene, METHODS[REFERENCE_SAMPLER], args.reference_spp, params)
-    reference = np.asarray(mi.render(reference_scene, seed=REFERENCE_SEED))
-    del reference_scene
-
-    def measure(scene, **kwargs):
-        integrator = kwargs.get("integrator")
-        _, first = timed_render(scene, seed=0, **kwargs)
-        times, traced, errors, counts = [], [], [], []
-        for seed in range(1, args.repeats + 1):
-            image, timing = timed_render(scene, seed=seed, **kwargs)
-            pixels = np.asarray(image)
-            times.append(timing.total)
-            errors.append(image_errors(pixels[..., :3], reference, flip=False)["rmse"])
-            if integrator is not None:
-                traced.append(integrator.stats["trace_seconds"] / integrator.stats["total_seconds"])
-                counts.append(float(pixels[..., -1].mean()))
-        return {"first": first.total, "compile": first.compile, "time": statistics.median(times),
-                "rmse": float(np.mean(errors)),
-                "traced": statistics.median(traced) if traced else 1.0,
-                "spp": statistics.mean(counts) if counts else None,
-                "image": pixels}
-
-    rows = []
-    jobs = [("jitter", spp) for spp in JITTER_SPP] + [("adaptive", config) for config in ADAPTIVE]
-    for kind, config in tqdm(jobs, desc="adaptive benchmark", file=sys.stderr):
-        if kind == "jitter":
-            scene = load_configured_scene(args.scene, METHODS["jitter"], config, params)
-            result = measure(scene, spp=config)
-            result.update(name=f"jitter {config} spp", spp=float(config))
-        else:
-            threshold, max_depth, min_depth = config
-            scene = load_configured_scene(args.scene, METHODS["jitter"], 16, params)
-            nested = scene.integrator()
-            integrator = mi.load_dict({"type": "adaptive", "threshold": threshold, "max_depth": max_depth,
-                                       "min_depth": min_depth, "nested": nested})
-            result = measure(scene, integrator=integrator)
-            result.update(name=f"adaptive t={threshold:g} depth {min_depth}..{max_depth}")
-        result["kind"] = kind
-        rows.append(result)
-        dr.flush_malloc_cache()
-
-    goal = next(r for r in rows if r["name"] == "jitter 16 spp")
-    reached = [r for r in rows if r["kind"] == "adaptive" and r["rmse"] <= goal["rmse"]]
-    best = min(reached, key=lambda r: r["time"]) if reached else min(
-        (r for r in rows if r["kind"] == "adaptive"), key=lambda r: r["rmse"])
-
-    print(f"machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
-          f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, scene {Path(args.scene).name} "
-          f"{reference.shape[1]}x{reference.shape[0]}, reference {REFERENCE_SAMPLER} {args.reference_spp} spp")
-    print()
-    print("| method | mean spp | RMSE | RMSE / jitter-16 | time (median) s | time / jitter-16 | "
-          "first call s (JIT compile s) | tracing share |")
-    print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['name']} | {r['spp']:.2f} | {r['rmse']:.5f} | {r['rmse'] / goal['rmse']:.2f} | "
-              f"{r['time']:.3f} | {r['time'] / goal['time']:.2f} | {r['first']:.2f} ({r['compile']:.2f}) | "
-              f"{r['traced'] * 100:.0f}% |")
-    print()
-    if reached:
-        print(f"goal RMSE <= jitter-16 ({goal['rmse']:.5f}) reached by {best['name']} in "
-              f"{best['time']:.3f} s = {best['time'] / goal['time']:.2f} x jitter-16's {goal['time']:.3f} s "
-              f"(goal <= 0.50: {'met' if best['time'] <= 0.5 * goal['time'] else 'NOT met'})")
-    else:
-        print(f"goal NOT met: no adaptive configuration reaches jitter-16's RMSE {goal['rmse']:.5f}; "
-              f"the best, {best['name']}, has {best['rmse']:.5f} in {best['time']:.3f} s")
-    print(f"scheduling overhead of {best['name']}: {(1 - best['traced']) * 100:.0f}% of the render "
-          f"(goal < 20%: {'met' if best['traced'] > 0.8 else 'NOT met'})")
-    _plot(rows, best, goal, args.plot)
+    print(f"machine: {platform.machine()}, Python {platform.python_version()}, Mitsuba {mi.__version__}, "
+          f"Dr.Jit {dr.__version__}, scene {Path(args.scene).name}, reference {REFERENCE_SAMPLER} "
+          f"{args.reference_spp} spp, medians of {args.repeats} interleaved rounds")
+    suites = {}
+    for nested_name in [n.strip() for n in args.nested.split(",") if n.strip()]:
+        nested_dict = None if nested_name == "direct" else {"type": "path", "max_depth": 8}
+        suites[nested_name] = run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS,
+                                        REFERENCE_SAMPLER, REFERENCE_SEED, image_errors, load_configured_scene,
+                                        timed_render)
+    _plot(suites, args.plot)
     print(f"plot: {args.plot}")
     return 0
 
 
-def _plot(rows, best, goal, path) -> None:
+def run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS, REFERENCE_SAMPLER, REFERENCE_SEED,
+              image_errors, load_configured_scene, timed_render):
+    reference_scene = load_configured_scene(args.scene, METHODS[REFERENCE_SAMPLER], args.reference_spp, params)
+    nested = mi.load_dict(nested_dict) if nested_dict else reference_scene.integrator()
+    reference = np.asarray(mi.render(reference_scene, integrator=nested, seed=REFERENCE_SEED))[..., :3]
+    del reference_scene
+
+    entries = []
+    for spp in JITTER_SPP:
+        scene = load_configured_scene(args.scene, METHODS["jitter"], spp, params)
+        entries.append({"name": f"jitter {spp} spp", "kind": "jitter", "scene": scene, "spp": float(spp),
+                        "kwargs": {"spp": spp, "integrator": nested}, "integrator": None})
+    for threshold, min_depth, max_depth in ADAPTIVE[nested_name]:
+        scene = load_configured_scene(args.scene, METHODS["jitter"], 16, params)
+        integrator = mi.load_dict({"type": "adaptive", "threshold": threshold, "max_depth": max_depth,
+                                   "min_depth": min_depth, "nested": nested})
+        entries.append({"name": f"adaptive t={threshold:g} depth {min_depth}..{max_depth}", "kind": "adaptive",
+                        "scene": scene, "kwargs": {"integrator": integrator}, "integrator": integrator,
+                        "config": (threshold, min_depth, max_depth)})
+    for e in entries:
+        image, first = timed_render(e["scene"], seed=0, **e["kwargs"])
+        e.update(first=first.total, compile=first.compile, times=[], errors=[], traced=[], counts=[], launches=[])
+        del image
+    rounds = range(1, args.repeats + 1)
+    for r in tqdm(rounds, desc=f"adaptive benchmark ({nested_name})", file=sys.stderr):
+        order = entries[r % len(entries):] + entries[:r % len(entries)]
+        for e in order:
+            image, timing = timed_render(e["scene"], seed=r, **e["kwargs"])
+            pixels = np.asarray(image)
+            e["times"].append(timing.total)
+            e["launches"].append(timing.kernels)
+            e["errors"].append(image_errors(pixels[..., :3], reference, flip=False)["rmse"])
+            if e["integrator"] is not None:
+                stats = e["integrator"].stats
+                e["traced"].append(stats["trace_seconds"] / stats["total_seconds"])
+                e["counts"].append(float(pixels[..., -1].mean()))
+                e["stats"] = dict(stats)
+    dr.flush_malloc_cache()
+    rows = []
+    for e in entries:
+        rows.append({"name": e["name"], "kind": e["kind"], "time": statistics.median(e["times"]),
+                     "rmse": float(np.mean(e["errors"])), "first": e["first"], "compile": e["compile"],
+                     "traced": statistics.median(e["traced"]) if e["traced"] else 1.0,
+                     "spp": statistics.mean(e["counts"]) if e["counts"] else e["spp"],
+                     "launches": statistics.median(e["launches"]), "stats": e.get("stats"),
+                     "config": e.get("config")})
+    goal = next(r for r in rows if r["name"] == "jitter 16 spp")
+    adaptive = [r for r in rows if r["kind"] == "adaptive"]
+    reached = [r for r in adaptive if r["rmse"] <= goal["rmse"]]
+    best = min(reached, key=lambda r: r["time"]) if reached else min(adaptive, key=lambda r: r["rmse"])
+    nested_label = "direct" if nested_name == "direct" else "path (max_depth 8)"
+    print()
+    print(f"### nested `{nested_label}`")
+    print()
+    print("| method | mean spp | rays / pixel | RMSE | RMSE / jitter-16 | time (median) s | time / jitter-16 | "
+          "first call s (JIT compile s) | JIT launches | tracing share |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        rays = sum(r["stats"]["rays"]) / (reference.shape[0] * reference.shape[1]) if r["stats"] else r["spp"]
+        print(f"| {r['name']} | {r['spp']:.2f} | {rays:.2f} | {r['rmse']:.5f} | {r['rmse'] / goal['rmse']:.2f} | "
+              f"{r['time']:.3f} | {r['time'] / goal['time']:.2f} | {r['first']:.2f} ({r['compile']:.2f}) | "
+              f"{r['launches']:.0f} | {r['traced'] * 100:.0f}% |")
+    print()
+    if reached:
+        print(f"goal RMSE <= jitter-16 ({goal['rmse']:.5f}) reached fastest by {best['name']}: RMSE "
+              f"{best['rmse'] / goal['rmse']:.2f} x, time {best['time']:.3f} s = {best['time'] / goal['time']:.2f} x "
+              f"jitter-16's {goal['time']:.3f} s (goal <= 0.50: "
+              f"{'met' if best['time'] <= 0.5 * goal['time'] else 'NOT met'})")
+    else:
+        print(f"goal NOT met: no adaptive configuration reaches jitter-16's RMSE {goal['rmse']:.5f}; "
+              f"the best, {best['name']}, has {best['rmse']:.5f} in {best['time']:.3f} s")
+    print(f"scheduling overhead of {best['name']}: {(1 - best['traced']) * 100:.0f}% of the render "
+          f"(goal < 20%: {'met' if best['traced'] > 0.8 else 'NOT met'}); rays per batch "
+          f"{best['stats']['rays']}, squares split per level {best['stats']['squares']}, host reads "
+          f"{best['stats']['host_reads']}, JIT launches {best['launches']:.0f}")
+    return {"rows": rows, "goal": goal, "best": best, "label": nested_label, "pixels": reference.shape[:2]}
+
+
+def _plot(suites, path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
-    jit = [r for r in rows if r["kind"] == "jitter"]
-    left.loglog([r["time"] for r in jit], [r["rmse"] for r in jit], "o-", label="jitter (4, 8, 16, 32 spp)")
-    for min_depth, marker in ((0, "s"), (1, "^")):
-        for max_depth, colour in ((2, "tab:green"), (3, "tab:orange"), (4, "tab:red")):
-            sel = [r for r in rows if r["kind"] == "adaptive" and f"depth {min_depth}..{max_depth}" in r["name"]]
-            if not sel:
-                continue
-            left.loglog([r["time"] for r in sel], [r["rmse"] for r in sel], marker + "--", color=colour,
-                        label=f"adaptive depth {min_depth}..{max_depth} (t = 32..4)")
-    left.axhline(goal["rmse"], color="grey", lw=0.8)
-    left.axvline(0.5 * goal["time"], color="grey", lw=0.8, ls=":")
-    left.set_xlabel("render time (s, median)")
-    left.set_ylabel("RMSE vs reference")
-    left.legend(fontsize=7)
-    left.set_title("error against time (lines: jitter-16 RMSE, half its time)", fontsize=9)
-    counts = best["image"][..., -1]
-    shown = right.imshow(counts, cmap="viridis", interpolation="nearest")
-    fig.colorbar(shown, ax=right, label="samples per pixel")
-    right.set_title(f"{best['name']}: sample count (mean {counts.mean():.1f})", fontsize=9)
-    right.set_axis_off()
+    fig, axes = plt.subplots(1, len(suites), figsize=(6 * len(suites), 4.6), dpi=100, squeeze=False)
+    for ax, (name, suite) in zip(axes[0], suites.items()):
+        rows, goal = suite["rows"], suite["goal"]
+        jit = [r for r in rows if r["kind"] == "jitter"]
+        ax.loglog([r["time"] for r in jit], [r["rmse"] for r in jit], "o-", color="black",
+                  label="jitter (4, 8, 16, 32 spp)")
+        depths = sorted({r["config"][1:] for r in rows if r["kind"] == "adaptive"})
+        for (min_depth, max_depth), colour in zip(depths, ("tab:blue", "tab:green", "tab:orange", "tab:red")):
+            sel = [r for r in rows if r["kind"] == "adaptive" and r["config"][1:] == (min_depth, max_depth)]
+            ax.loglog([r["time"] for r in sel], [r["rmse"] for r in sel], "s--", color=colour,
+                      label=f"adaptive depth {min_depth}..{max_depth} "
+                            "(t = " + ", ".join(f"{r['config'][0]:g}" for r in sel) + ")")
+        ax.axhline(goal["rmse"], color="grey", lw=0.8)
+        ax.axvline(0.5 * goal["time"], color="grey", lw=0.8, ls=":")
+        ax.set_xlabel("render time (s, median)")
+        ax.set_ylabel("RMSE vs reference")
+        ax.legend(fontsize=7)
+        ax.set_title(f"edges.xml, nested {suite['label']}\n(lines: jitter-16 RMSE, half its time)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

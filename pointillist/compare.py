@@ -124,13 +124,18 @@ def _configure_adaptive(root: ET.Element, value: float) -> None:
         root.remove(element)
     adaptive = ET.Element("integrator", {"type": "adaptive"})
     adaptive.append(_property("float", "threshold", float(value)))
+    for name, depth in ADAPTIVE_DEPTHS.items():
+        adaptive.append(_property("integer", name, depth))
     adaptive.append(old[0] if old else ET.Element("integrator", {"type": "path"}))
     root.insert(position, adaptive)
 
 
 #: Adaptive super-sampling (plugins/integrators/adaptive.py) sweeps its threshold on
-#: the 0..255 display scale, around the scene's own integrator.
-ADAPTIVE_THRESHOLDS = (64.0, 32.0, 16.0, 8.0, 4.0)
+#: the 0..255 display scale, around the scene's own integrator, starting from the 3 x 3
+#: lattice per pixel (min_depth 1) down to depth 3: the best error-vs-time curve on
+#: scenes/edges.xml (benchmarks/RESULTS.md, "adaptive"); below 16 the error stops falling.
+ADAPTIVE_THRESHOLDS = (128.0, 64.0, 32.0, 16.0)
+ADAPTIVE_DEPTHS = {"min_depth": 1, "max_depth": 3}
 register_method(Method("adaptive", "adaptive", kind="integrator", parameter="threshold",
                        values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive))
 

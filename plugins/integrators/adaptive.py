@@ -322,7 +322,8 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         channel_count = film.prepare(names)
         width, height = (int(v) for v in film.crop_size())
         start = time.perf_counter()
-        self.stats = {"criterion": self.criterion, "rays": [], "trace_seconds": 0.0}
+        self.stats = {"criterion": self.criterion, "rays": [], "squares": [], "host_reads": 0,
+                      "trace_seconds": 0.0}
         with dr.suspend_grad():
             if self.criterion == "range":
                 channels, valid_n, count = self._render_range(scene, sensor, seed, width, height)
@@ -498,6 +499,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         quad = lattice_square(dr.arange(mi.UInt32, cells))[2]
         flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)
         sel, pos = _compact(flags)
+        self.stats["host_reads"] += 1
         if sel is None:
             return sums, valid_n, count
         i, j, quad = lattice_square(sel)
@@ -543,6 +545,8 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         # 2. Where each square's own points go in the ray batch.
         end = dr.cumsum(points_of)
         total = int(end[n - 1])
+        self.stats["host_reads"] += 1
+        self.stats["squares"].append(n)
         start = end - points_of
 
         # 3. The ray batch: lane t belongs to the first square whose range ends after t.
@@ -623,6 +627,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         child = dr.arange(mi.UInt32, 4 * n)
         flags = (dr.gather(mi.UInt32, mask, child >> 2) >> (child & 3)) & 1
         sel, pos = _compact(flags)
+        self.stats["host_reads"] += 1
         if sel is None:
             return None
         ps, q = sel >> 2, sel & 3
