@@ -7,13 +7,14 @@ sequences, Dr.Jit tensors of the LLVM backend with or without AD) into the
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+from typing import Any, Callable, TypeVar
 
 import drjit as dr
 import numpy as np
 from drjit.llvm import TensorXf
 
-__all__ = ["as_tensor", "to_numpy", "TensorXf"]
+__all__ = ["as_tensor", "to_numpy", "TensorXf", "eager_if_shared"]
 
 
 def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | None = None,
@@ -77,3 +78,27 @@ def to_numpy(image: Any) -> np.ndarray:
     if dr.is_tensor_v(image):
         return np.asarray(dr.detach(image) if dr.is_diff_v(image) else image)
     return np.asarray(image)
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def eager_if_shared(function: _F) -> _F:
+    """Decorator for image operations: evaluate the result before returning when the image
+    argument is not a Dr.Jit array.
+
+    :func:`as_tensor` shares a C-contiguous float32 numpy array's memory with Dr.Jit (no
+    copy), and Dr.Jit evaluates lazily: without this, a caller who changes its numpy array
+    after the call, before using the result, would change the result. Dr.Jit inputs stay
+    lazy, so chains of operations on Dr.Jit tensors still fuse into one kernel.
+    """
+
+    @functools.wraps(function)
+    def wrapper(image: Any, *args: Any, **kwargs: Any) -> Any:
+        result = function(image, *args, **kwargs)
+        if not dr.is_array_v(image):
+            dr.eval(result)
+            dr.sync_thread()
+        return result
+
+    return wrapper  # type: ignore[return-value]

@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
-from imaging._array import TensorXf, as_tensor
+from imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -159,6 +159,7 @@ def _rgb_from_hsv(h: Float, s: Float, v: Float) -> tuple[Float, Float, Float]:
     return r, g, b
 
 
+@eager_if_shared
 def rgb_to_hsv(image: Any) -> TensorXf:
     """Convert an RGB image to HSV (hue in degrees, saturation, value).
 
@@ -191,6 +192,7 @@ def rgb_to_hsv(image: Any) -> TensorXf:
     return _map_pixels(tensor, lambda r, g, b: _hsv_from_rgb(_finite(r), _finite(g), _finite(b)))
 
 
+@eager_if_shared
 def hsv_to_rgb(image: Any) -> TensorXf:
     """Convert an HSV image (hue in degrees) back to RGB.
 
@@ -217,6 +219,7 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     return _map_pixels(tensor, lambda h, s, v: _rgb_from_hsv(_finite(h), _finite(s), _finite(v)))
 
 
+@eager_if_shared
 def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: float = 1.0) -> TensorXf:
     """Shift the hue and scale the saturation and value of an RGB image (through HSV).
 
@@ -267,6 +270,7 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     return _map_pixels(_rgb_tensor(image), adjust)
 
 
+@eager_if_shared
 def luminance(image: Any) -> TensorXf:
     """Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B.
 
@@ -313,6 +317,7 @@ def _decode(values: Float) -> Float:
     return dr.select(values <= SRGB_ENCODED_THRESHOLD, values * (1.0 / SRGB_SLOPE), dr.power(base, SRGB_EXPONENT))
 
 
+@eager_if_shared
 def srgb_encode(image: Any) -> TensorXf:
     """Apply the sRGB encoding curve (linear light -> display values), per component.
 
@@ -343,6 +348,7 @@ def srgb_encode(image: Any) -> TensorXf:
     return TensorXf(_encode(tensor.array), tensor.shape)
 
 
+@eager_if_shared
 def srgb_decode(image: Any) -> TensorXf:
     """Apply the sRGB decoding curve (display values -> linear light); inverse of :func:`srgb_encode`.
 

@@ -67,7 +67,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, Float64, Int32, UInt8, UInt32
 
-from imaging._array import TensorXf, _check_shape, as_tensor
+from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
 from imaging.filters import threshold
 
 __all__ = [
@@ -481,6 +481,7 @@ def _diffuse(image: Any, kernel: DiffusionKernel, *, level: float, levels: int, 
     return TensorXf(out, shape)
 
 
+@eager_if_shared
 def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, levels: int = 2,
             serpentine: bool = False, linear: bool = False) -> TensorXf:
     """Error diffusion with a named kernel, exact and parallel (one Dr.Jit kernel launch).
@@ -536,6 +537,7 @@ def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, 
     return _diffuse(image, KERNELS[kernel], level=level, levels=levels, serpentine=serpentine, linear=linear)
 
 
+@eager_if_shared
 def floyd_steinberg(image: Any, level: float = 128, serpentine: bool = False, *, levels: int = 2,
                     linear: bool = False) -> TensorXf:
     """Floyd-Steinberg error diffusion (SPEC): 7/16 right, 3/16 below-left, 5/16 below, 1/16 below-right.
@@ -554,6 +556,7 @@ def floyd_steinberg(image: Any, level: float = 128, serpentine: bool = False, *,
                     linear=linear)
 
 
+@eager_if_shared
 def error_diffusion(image: Any, level: float = 128, *, levels: int = 2, linear: bool = False) -> TensorXf:
     """Simple error diffusion (SPEC): 100 % of each pixel's error goes to the next pixel, serpentine.
 
@@ -816,6 +819,7 @@ def _ordered_1bit(values: Float, template: np.ndarray, y: UInt32, x: UInt32) -> 
     return dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0))
 
 
+@eager_if_shared
 def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf:
     """Ordered dithering (SPEC): one p per pixel, compared with the template entry at that pixel.
 
@@ -882,6 +886,7 @@ def _ordered(image: Any, template: np.ndarray, levels: int, linear: bool) -> Ten
     return TensorXf(_ordered_values(values, thresholds, n * n, levels), shape)
 
 
+@eager_if_shared
 def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf:
     """Pattern dithering (SPEC): one p per n x n block from the block's average intensity.
 
@@ -928,6 +933,7 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     return TensorXf(_ordered_values(mean, thresholds, n * n, levels), shape)
 
 
+@eager_if_shared
 def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf:
     """Halftoning (SPEC): every pixel becomes an n x n pattern; n^2 + 1 grey levels.
 
@@ -1063,6 +1069,7 @@ def _blue_noise_mask() -> np.ndarray:
     return mask
 
 
+@eager_if_shared
 def blue_noise(image: Any, *, levels: int = 2, linear: bool = False, mask: Any = None) -> TensorXf:
     """Ordered dithering with a blue-noise (void-and-cluster) threshold mask.
 

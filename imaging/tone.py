@@ -40,7 +40,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from imaging._array import TensorXf, _check_shape, as_tensor
+from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
 from imaging.colour import REC709_LUMINANCE_WEIGHTS, _encode, _hsv_from_rgb, _rgb_from_hsv
 
 __all__ = [
@@ -183,6 +183,7 @@ def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
 
 # --------------------------------------------------------------------------- operations
 
+@eager_if_shared
 def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf:
     """Gamma correction V = (I / a)^(1/gamma) on intensities normalised to 0..1.
 
@@ -233,6 +234,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     return _pointwise(image, curve, max_value, "gamma")
 
 
+@eager_if_shared
 def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
                      max_value: float = 255.0) -> TensorXf:
     """Piecewise-linear contrast stretching through (0, 0), (r1, s1), (r2, s2), (max, max).
@@ -301,6 +303,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     return _pointwise(image, curve, max_value, "contrast_stretch")
 
 
+@eager_if_shared
 def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     """Quantise to ``levels`` evenly spaced grey levels spanning 0..max_value.
 
@@ -366,6 +369,7 @@ def _table(table: Any, channels: int) -> tuple[Float, int]:
     return Float(np.ascontiguousarray(values, dtype=np.float32).reshape(-1)), width
 
 
+@eager_if_shared
 def lut(image: Any, table: Any) -> TensorXf:
     """Apply a 256-entry look-up table to 8-bit data: out = table[I].
 
@@ -532,6 +536,7 @@ def _bins(image: Any, levels: int, max_value: float):
     return bins, words, tail, tuple(tensor.shape), count
 
 
+@eager_if_shared
 def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf:
     """Histogram equalisation (SPEC): F(i) = max(0, round(L t(i) / (h w)) - 1).
 
@@ -621,6 +626,7 @@ def _luminance(channels: list[Float]) -> Float:
     return wr * channels[0] + wg * channels[1] + wb * channels[2]
 
 
+@eager_if_shared
 def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params: Any) -> TensorXf:
     """Tone-map a linear HDR render to display values 0..255 (curve, then the sRGB encoding).
 
