@@ -177,7 +177,7 @@ def _source_index(j: np.ndarray, n: int, border: str) -> np.ndarray:
 class _Window:
     """Shifted zero-copy views of one image for window operations with radii (ry, rx)."""
 
-    def __init__(self, tensor: TensorXf, ry: int, rx: int):
+    def __init__(self, tensor: TensorXf, ry: int, rx: int, *, edge: bool = False):
         shape = tuple(tensor.shape)
         self.shape = shape
         self.H, self.W = shape[0], shape[1]
@@ -190,6 +190,10 @@ class _Window:
         padded[:self.margin] = 0.0
         padded[self.margin + self.N:] = 0.0
         padded[self.margin:self.margin + self.N] = self.source
+        if edge:    # rows above / below the image repeat the first / last row (clamp border)
+            row = self.W * self.C
+            padded[self.margin - ry * row:self.margin] = np.tile(self.source[:row], ry)
+            padded[self.margin + self.N:self.margin + self.N + ry * row] = np.tile(self.source[-row:], ry)
         self.padded = padded
         index = dr.arange(UInt32, self.N)
         pixel = index // self.C if self.C > 1 else index
@@ -211,6 +215,24 @@ class _Window:
 
     def taps(self, offsets: Sequence[tuple[int, int]]) -> Taps:
         return {d: self.tap(*d) for d in offsets}
+
+    def clamped_taps(self, offsets: Sequence[tuple[int, int]]) -> Taps:
+        """Taps under the ``clamp`` border for *every* pixel, ring included (needs ``edge=True``).
+
+        Rows come clamped from the replicated margins; a column ``x + dx`` outside the image
+        is replaced, with selects on ``x``, by the tap that reads the edge column instead
+        (``dx' = clamp(x + dx, 0, W - 1) - x``), so no ring pass is needed.
+        """
+        taps = {}
+        for dy, dx in offsets:
+            value = self.tap(dy, dx)
+            for k in range(min(abs(dx), self.W)):   # x + dx < 0: x = k reads column 0, tap dx' = -k
+                if dx < 0:                    # x + dx > W - 1: W - 1 - x = k reads tap dx' = k
+                    value = dr.select(self.x == k, self.tap(dy, -k), value)
+                else:
+                    value = dr.select(self.x == self.W - 1 - k, self.tap(dy, k), value)
+            taps[(dy, dx)] = value
+        return taps
 
     def ring_taps(self, border: str, offsets: Sequence[tuple[int, int]]) -> tuple[UInt32, Taps]:
         """Element indices of the ring and, per tap, the ring's values under a padded border mode."""
@@ -268,11 +290,12 @@ def _window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Sequ
     ``reduce`` and a non-padded border, the first output's ring holds NaN (left out of
     min/max): the caller refills it (``_rescale`` with the ``inside`` mask).
     """
-    window = _Window(tensor, ry, rx)
-    outs = list(combine(window.taps(offsets)))
+    clamp = border == "clamp"
+    window = _Window(tensor, ry, rx, edge=clamp)
+    outs = list(combine(window.clamped_taps(offsets) if clamp else window.taps(offsets)))
     if absolute:
         outs[0] = dr.abs(outs[0])
-    padded = border in _PADDED
+    padded = border in _PADDED          # every pixel computed (no zero / keep / crop ring)
     if not padded:
         fill = window.tap(0, 0) if border == "keep" else Float(0.0)
         fills = [fill] * len(outs)
@@ -280,7 +303,7 @@ def _window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Sequ
             fills[0] = Float(math.nan)
         outs = [dr.select(window.inside, o, f) for o, f in zip(outs, fills)]
     dr.eval(*outs)
-    if padded:
+    if padded and not clamp:            # clamp's ring is already right (`_Window.clamped_taps`)
         elements, ring = window.ring_taps(border, offsets)
         if dr.width(elements):
             values = list(combine(ring))

@@ -118,3 +118,15 @@ def test_fixed_median_networks_on_every_0_1_input(n):
         reference[i], reference[j] = reference[i] & reference[j], reference[i] | reference[j]
     mask = np.uint64((1 << min(2 ** n, 64)) - 1) if n < 6 else ~np.uint64(0)
     np.testing.assert_array_equal(wires[middle] & mask, reference[n // 2] & mask)
+
+
+@pytest.mark.parametrize("shape", [(3, 2), (40, 3), (2, 50, 3), (33, 47, 2)])
+def test_clamp_border_without_a_ring_pass_matches_scipy(shape):
+    """``clamp`` computes every pixel in the main kernel (replicated rows, column selects)."""
+    img = (RNG.random(shape) * 255).astype(np.float32)
+    kernel = RNG.standard_normal((5, 7)).astype(np.float32)
+    weights = kernel if img.ndim == 2 else kernel[..., None]
+    expected = ndi.correlate(img.astype(np.float64), weights.astype(np.float64), mode="nearest")
+    np.testing.assert_allclose(out(F.correlate(img, kernel, border="clamp")), expected, atol=2e-3)
+    size = (5, 5) if img.ndim == 2 else (5, 5, 1)
+    np.testing.assert_array_equal(out(F.median(img, 5)), ndi.median_filter(img, size=size, mode="nearest"))
