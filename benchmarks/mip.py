@@ -68,14 +68,38 @@ def part_a(n: int, repeats: int) -> dict:
         image, integrator = _ours(volume, view="axial", native=True, interpolation=interp)
         out[f"axial_{interp}_first"] = time.perf_counter() - t
         out[f"axial_{interp}"] = _median(lambda: _ours(volume, integrator, view="axial", native=True), repeats)
+        out[f"axial_{interp}_path"] = integrator.last_path
         out[f"axial_{interp}_exact"] = bool(np.array_equal(image, vol.max(axis=0).astype(np.float32)))
         if interp == "trilinear":
             out["texture"] = integrator.texture_info()
+    for name, axis in (("coronal", 1), ("sagittal", 2)):
+        _, integrator = _ours(volume, view=name, native=True, interpolation="nearest")
+        out[f"{name}_nearest"] = _median(lambda: _ours(volume, integrator, view=name, native=True), repeats)
+        out[f"numpy_axis{axis}_max"] = _median(lambda: vol.max(axis=axis), repeats)
     view = dict(view=None, azimuth=30.0, elevation=20.0, size=(n, n))
-    t = time.perf_counter()
-    image, integrator = _ours(volume, **view)
-    out["oblique_first"] = time.perf_counter() - t
-    out["oblique"] = _median(lambda: _ours(volume, integrator, **view), repeats)
+    import pointillist as _p
+
+    mi = _p.setup()
+    for interp in ("trilinear", "nearest"):
+        for step in (0.5, 1.0):
+            for skip in (True, False):
+                key = f"oblique_{interp}_step{step}_{'bricks' if skip else 'march'}"
+                integrator = mi.load_dict({"type": "mip", "interpolation": interp, "step": step,
+                                           "skip_bricks": skip})
+                integrator.set_volume(volume)
+                t = time.perf_counter()
+                integrator.brick_bounds() if skip else None
+                out[f"bricks_build_s"] = time.perf_counter() - t if skip else out.get("bricks_build_s")
+                t = time.perf_counter()
+                image, _ = _ours(volume, integrator, **view)
+                out[key + "_first"] = time.perf_counter() - t
+                out[key] = _median(lambda: _ours(volume, integrator, **view), repeats)
+                if skip:
+                    reference = image
+                else:
+                    out[key + "_bits_equal"] = bool(np.array_equal(reference.view(np.uint32), image.view(np.uint32)))
+    out["oblique"] = out["oblique_trilinear_step0.5_bricks"]
+    out["oblique_first"] = out["oblique_trilinear_step0.5_bricks_first"]
     dr.sync_thread()
 
     # scipy: rotate the volume into the view frame, then max along the viewing axis
@@ -113,6 +137,9 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     integrator = mi.load_dict({"type": "mip"})
     integrator.set_volume(volume)
     texture_s = time.perf_counter() - t
+    t = time.perf_counter()
+    integrator.brick_bounds()  # needs the voxels: build the brick grid before dropping them
+    bricks_s = time.perf_counter() - t
     # the int16 source is no longer needed: keep only its shape (a zero-stride view)
     del vol
     volume = Volume(np.broadcast_to(np.zeros((), np.int16), shape), volume.spacing)
@@ -124,7 +151,8 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     image, _ = project_volume(volume, integrator=integrator, **view)
     second = time.perf_counter() - t
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    print(json.dumps({"shape": shape, "build_s": build, "texture_s": texture_s, "first_s": first,
+    print(json.dumps({"shape": shape, "build_s": build, "texture_s": texture_s, "bricks_s": bricks_s,
+                      "path": integrator.last_path, "first_s": first,
                       "steady_s": second, "peak_rss": peak, "volume_bytes": int(np.prod(shape)) * 2,
                       "texture": integrator.texture_info(), "image_max": float(image.max())}))
 
@@ -154,19 +182,26 @@ def main() -> None:
     print(f"\n| {n}^3 int16, {n}x{n} image | ours (s) | first call (s) | peer (s) | ours / peer |")
     print("|---|---|---|---|---|")
     for interp in ("nearest", "trilinear"):
-        print(f"| axial, {interp} vs numpy max(axis=0) | {a[f'axial_{interp}']:.3f} | "
+        print(f"| axial, {interp} ({a[f'axial_{interp}_path']}) vs numpy max(axis=0) | {a[f'axial_{interp}']:.4f} | "
               f"{a[f'axial_{interp}_first']:.3f} | {a['numpy_axis_max']:.4f} | "
               f"{a[f'axial_{interp}'] / a['numpy_axis_max']:.1f}x |")
-    for order in (1, 3):
-        peer = a[f"scipy_order{order}_scaled"]
-        print(f"| oblique 30/20, trilinear vs scipy affine_transform order {order} + max "
-              f"(128^3 x64) | {a['oblique']:.3f} | {a['oblique_first']:.3f} | {peer:.2f} | "
-              f"{a['oblique'] / peer:.3f} ({peer / a['oblique']:.0f}x faster) |")
+    for name, axis in (("coronal", 1), ("sagittal", 2)):
+        print(f"| {name}, nearest vs numpy max(axis={axis}) | {a[f'{name}_nearest']:.4f} | - | "
+              f"{a[f'numpy_axis{axis}_max']:.4f} | {a[f'{name}_nearest'] / a[f'numpy_axis{axis}_max']:.1f}x |")
+    for interp in ("trilinear", "nearest"):
+        for step in (0.5, 1.0):
+            for way in ("bricks", "march"):
+                ours = a[f"oblique_{interp}_step{step}_{way}"]
+                for order in (1, 3):
+                    peer = a[f"scipy_order{order}_scaled"]
+                    print(f"| oblique 30/20, {interp}, step {step}, {way} vs scipy order {order} + max "
+                          f"(128^3 x64) | {ours:.3f} | {a[f'oblique_{interp}_step{step}_{way}_first']:.3f} | "
+                          f"{peer:.2f} | {peer / ours:.1f}x faster |")
     if args.ct:
         b = part_b((1800, 512, 512))
         print(json.dumps(b, indent=1))
         gb = b["volume_bytes"] / 1e9
-        print(f"\nCT 512x512x1800 int16 ({gb:.2f} GB): build {b['build_s']:.1f} s, texture "
+        print(f"\nCT 512x512x1800 int16 ({gb:.2f} GB, {b['path']}): build {b['build_s']:.1f} s, bricks {b['bricks_s']:.1f} s, texture "
               f"{b['texture_s']:.1f} s, oblique 512x512 MIP first {b['first_s']:.2f} s, steady "
               f"{b['steady_s']:.2f} s, peak RSS {b['peak_rss'] / 1e9:.2f} GB = "
               f"{b['peak_rss'] / b['volume_bytes']:.2f}x the volume")

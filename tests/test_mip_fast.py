@@ -254,3 +254,23 @@ def test_average_never_skips(mi):
     integrator.set_volume(BRICK_VOLUMES["random"])
     integrator.project_rays(mi.Ray3f(mi.Point3f(0.1, 0.2, -20), mi.Vector3f(0.1, 0, 1)))
     assert integrator.last_path == "march"
+
+
+@pytest.mark.parametrize("value,dtype,precision", [(-1100, np.int16, "single"), (40, np.int16, "single"),
+                                                   (-1100, np.int16, "half"), (0.37, np.float32, "auto"),
+                                                   (-3e4, np.float32, "auto")])
+def test_flat_brick_samples_repeat_the_texture_arithmetic(mi, value, dtype, precision):
+    # a constant volume's trilinear lookups are not all exactly the constant (rounded weights):
+    # the flat-brick shortcut must reproduce each lookup's bits, not the constant
+    vol = np.full((9, 10, 12), value, dtype)
+    integrator = mi.load_dict({"type": "mip", "precision": precision})
+    integrator.set_volume(vol)
+    integrator.brick_bounds()
+    c = np.asarray(integrator._flat)
+    assert np.all(c == c[0]) and c[0] == np.float32(value) - np.float32(integrator._tex.offset)
+    points = mi.Point3f(*np.random.default_rng(9).random((3, 50000)).astype(np.float32) * 1.2 - 0.1)
+    texture = np.asarray(integrator._tex.texture.eval(points)[0])
+    flat = np.asarray(integrator._flat_sample(mi.Float(float(c[0])), points))
+    assert np.array_equal(flat.view(np.uint32), texture.view(np.uint32))
+    if c[0] != 0:  # (half precision stores value - offset = 0 here: exact)
+        assert np.count_nonzero(texture != np.float32(c[0])) > 100  # the rounding is really there

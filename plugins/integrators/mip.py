@@ -147,6 +147,16 @@ class MIPIntegrator(mi.SamplingIntegrator):
        - |float|
        - Raw value of rays that miss the volume (or meet only NaN voxels).
          (Default: the volume's minimum for ``mip``/``average``, maximum for ``minip``)
+     * - fast_axis
+       - |bool|
+       - Axis-aligned orthographic views: reduce voxel columns of the stored volume directly
+         when that is checked to give the march's result bit for bit (see ``_columns``).
+         (Default: true)
+     * - skip_bricks
+       - |bool|
+       - ``mip``/``minip`` elsewhere: skip samples in 8^3 bricks whose bound cannot change the
+         running maximum (minimum); same result bit for bit. ``average`` cannot skip.
+         (Default: true)
      * - precision
        - |string|
        - Texture storage: ``auto`` (half precision when exact: 16-bit CT), ``half``, ``single``.
@@ -228,6 +238,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self.volume = volume
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
+        self._flat = None  # per-brick constant value, NaN where the brick is not constant
 
     @property
     def background(self) -> float:
@@ -293,6 +304,11 @@ class MIPIntegrator(mi.SamplingIntegrator):
             else:
                 source, offset = self.volume.data, tex.offset
             upper, lower = brick_grid(source, brick=BRICK, offset=offset)
+            # flat bricks (every voxel a lookup can touch holds the same finite value c):
+            # their samples are computed from c without reading voxels (see _flat_sample)
+            flat = np.where((upper == lower) & np.isfinite(upper), upper, np.nan).astype(np.float32)
+            if not np.all(np.isnan(flat)) and not self.storage_finite():
+                flat[:] = np.nan  # a NaN voxel would turn neighbouring lookups into NaN
             if self.interpolation == "trilinear":
                 with np.errstate(invalid="ignore"):
                     size = np.nan_to_num(np.maximum(np.abs(upper), np.abs(lower)), posinf=np.inf)
@@ -303,7 +319,34 @@ class MIPIntegrator(mi.SamplingIntegrator):
             lo32 = lower.astype(np.float32)
             lo32 = np.where(lo32 > lower, np.nextafter(lo32, np.float32(-np.inf)), lo32)
             self._bricks = (mi.Float(up32.ravel()), mi.Float(lo32.ravel()), upper.shape)
+            self._flat = mi.Float(flat.ravel())
         return self._bricks
+
+    def _flat_sample(self, c: mi.Float, p: mi.Point3f) -> mi.Float:
+        """The texture's lookup at ``p`` where all 8 voxels it reads hold ``c``, without reading them.
+
+        Nearest returns ``c``. Trilinear repeats the float32 arithmetic of Dr.Jit's texture
+        (``drjit/texture_impl.h``, ``tex_eval``): ``pos = fma(p, res, -0.5)``, ``w1 = pos -
+        floor(pos)``, ``w0 = 1 - w1``, corner weights multiplied x, y, z and accumulated with
+        ``fma(value, weight, out)`` over the corners in order, so the result (which can differ
+        from ``c`` by float rounding) is bit for bit the texture's.
+        """
+        if self.interpolation == "nearest":
+            return mi.Float(c)
+        nx, ny, nz = self.volume.shape_xyz
+        res = dr.opaque(mi.Vector3f, [float(nx), float(ny), float(nz)])
+        w = []
+        for k in range(3):
+            pos_f = dr.fma(p[k], res[k], -0.5)
+            w1 = pos_f - mi.Float(mi.Int32(dr.floor(pos_f)))
+            w.append((1.0 - w1, w1))
+        out = dr.zeros(mi.Float, dr.width(p))
+        for corner in range(8):
+            weight = mi.Float(1.0)
+            for k in range(3):
+                weight = weight * w[k][(corner >> k) & 1]
+            out = dr.fma(c, weight, out)
+        return out
 
     @dr.syntax
     def _march_bricks(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
@@ -320,6 +363,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
 
         upper, lower, grid = self.brick_bounds()
         bounds = upper if self.mode == "mip" else lower
+        flat = self._flat
         to_tex = self._world_to_texture()
         o = to_tex @ ray.o
         d = to_tex @ ray.d
@@ -357,7 +401,12 @@ class MIPIntegrator(mi.SamplingIntegrator):
                 ahead = dr.minimum(ahead, mi.Float(count))
                 k = dr.maximum(mi.UInt32(dr.maximum(ahead, 0.0)), k + 1)
             else:
-                v = tex.eval(mi.Point3f(p))[0]
+                c = dr.gather(mi.Float, flat, mi.UInt32(index))
+                v = mi.Float(0.0)
+                if ~dr.isnan(c):
+                    v = self._flat_sample(c, mi.Point3f(p))
+                else:
+                    v = tex.eval(mi.Point3f(p))[0]
                 ok = ~dr.isnan(v)
                 if dr.hint(maximum, mode="scalar"):
                     acc = dr.select(ok, dr.maximum(acc, v), acc)
