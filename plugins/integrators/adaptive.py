@@ -121,7 +121,8 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
        - |int|
        - ``range``: split every square down to this level before testing any (Default: 0,
          the course's method). 1 starts from a 3 x 3 lattice per pixel, which catches
-         features thinner than a pixel that all four corners miss.
+         features thinner than a pixel that all four corners miss. The whole
+         (2^m W + 1) x (2^m H + 1) lattice of ``min_depth = m`` is one batch of rays.
      * - weighting
        - |string|
        - ``range``: ``area`` (default) or ``equal``: how a pixel averages its samples
