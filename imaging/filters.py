@@ -56,7 +56,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, UInt32
 
-from imaging._array import TensorXf, as_tensor
+from imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
@@ -154,6 +154,8 @@ def _padded_buffer(length: int) -> np.ndarray:
     if buffer is None or buffer.size < length or buffer.size > 4 * length + (1 << 20):
         buffer = _aligned_empty(length)
         _scratch.buffer = buffer
+    else:
+        dr.sync_thread()     # LLVM kernels run asynchronously: the last call's may still read it
     return buffer[:length]
 
 
@@ -490,6 +492,7 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
     return _finish(out, window, border)
 
 
+@eager_if_shared
 def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     """Min-max normalise to 0..255 over the whole image (SPEC): ``(|I| - min) * 255 / (max - min)``.
 
@@ -666,6 +669,7 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
     return TensorXf(out, tensor.shape)
 
 
+@eager_if_shared
 def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> TensorXf:
     """Threshold: values below ``level`` become 0, values at or above it ``max_value``.
 

@@ -130,3 +130,16 @@ def test_clamp_border_without_a_ring_pass_matches_scipy(shape):
     np.testing.assert_allclose(out(F.correlate(img, kernel, border="clamp")), expected, atol=2e-3)
     size = (5, 5) if img.ndim == 2 else (5, 5, 1)
     np.testing.assert_array_equal(out(F.median(img, 5)), ndi.median_filter(img, size=size, mode="nearest"))
+
+
+def test_results_do_not_follow_later_changes_of_a_numpy_input():
+    """Results are evaluated before returning: numpy inputs are shared with Dr.Jit, not copied."""
+    img = (RNG.random((64, 48)) * 255).astype(np.float32)
+    keep = img.copy()
+    results = [F.normalize(img, absolute=False), F.threshold(img, 128), F.median(img, 3),
+               F.correlate(img, F.GAUSSIAN_3, normalize=True)]
+    img[:] = 0.0
+    expected = [F.normalize(keep, absolute=False), F.threshold(keep, 128), F.median(keep, 3),
+                F.correlate(keep, F.GAUSSIAN_3, normalize=True)]
+    for got, want in zip(results, expected):
+        np.testing.assert_array_equal(out(got), out(want))
