@@ -43,6 +43,8 @@ __all__ = [
     "adjust_hsv",
     "srgb_encode",
     "srgb_decode",
+    "srgb_encode_values",
+    "srgb_decode_values",
 ]
 
 #: Rec. 709 / sRGB luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.3).
@@ -302,16 +304,16 @@ def luminance(image: Any) -> TensorXf:
     return TensorXf(dr.select(dr.isnan(y), 0.0, y), (height, width))
 
 
-def _encode(values: Float) -> Float:
-    """sRGB encoding of linear values (colour-science's ``eotf_inverse_sRGB``), NaN -> 0."""
+def srgb_encode_values(values: Float) -> Float:
+    """sRGB encoding of linear values (any Dr.Jit float array or Python float) (colour-science's ``eotf_inverse_sRGB``), NaN -> 0."""
     values = dr.select(dr.isnan(values), 0.0, values)
     # 1.055 p - 0.055 written as 1.055 (p - 1) + 1 (1.055 - 0.055 = 1): white encodes to exactly 1
     power = SRGB_SCALE * (dr.power(dr.maximum(values, SRGB_LINEAR_THRESHOLD), 1.0 / SRGB_EXPONENT) - 1.0) + 1.0
     return dr.select(values <= SRGB_LINEAR_THRESHOLD, values * SRGB_SLOPE, power)
 
 
-def _decode(values: Float) -> Float:
-    """sRGB decoding of encoded values (colour-science's ``eotf_sRGB``), NaN -> 0."""
+def srgb_decode_values(values: Float) -> Float:
+    """sRGB decoding of encoded values (any Dr.Jit float array or Python float) (colour-science's ``eotf_sRGB``), NaN -> 0."""
     values = dr.select(dr.isnan(values), 0.0, values)
     base = (dr.maximum(values, SRGB_ENCODED_THRESHOLD) + SRGB_OFFSET) * (1.0 / SRGB_SCALE)
     return dr.select(values <= SRGB_ENCODED_THRESHOLD, values * (1.0 / SRGB_SLOPE), dr.power(base, SRGB_EXPONENT))
@@ -345,7 +347,7 @@ def srgb_encode(image: Any) -> TensorXf:
     [[0.0, 0.4614, 1.0]]
     """
     tensor = as_tensor(image)
-    return TensorXf(_encode(tensor.array), tensor.shape)
+    return TensorXf(srgb_encode_values(tensor.array), tensor.shape)
 
 
 @eager_if_shared
@@ -374,4 +376,4 @@ def srgb_decode(image: Any) -> TensorXf:
     [[0.0, 0.214, 1.0]]
     """
     tensor = as_tensor(image)
-    return TensorXf(_decode(tensor.array), tensor.shape)
+    return TensorXf(srgb_decode_values(tensor.array), tensor.shape)

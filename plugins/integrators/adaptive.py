@@ -33,11 +33,6 @@ MAX_DEPTH_LIMIT = 12
 #: Most rays in one batch (lane indices are 32-bit).
 _MAX_LANES = 1 << 31
 
-#: sRGB transfer function (IEC 61966-2-1:1999): linear segment below this value ...
-SRGB_LINEAR_LIMIT = 0.0031308
-#: ... with this slope, and 1.055 v^(1/2.4) - 0.055 above it.
-SRGB_SLOPE = 12.92
-
 #: New points of a refined square, on the doubled lattice of the next level, relative to
 #: (2i, 2j): the midpoints of the edges y = j and x = i, the centre, the midpoints of the
 #: edges x = i + 1 and y = j + 1.
@@ -55,15 +50,15 @@ def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
     """Display value 0..255 of a linear colour: ``255 encode(clip(2^exposure value, 0, 1))``.
 
     The same mapping as ``imaging.io.to_8bit`` (and so the PNG of ``pointillist
-    render``) before rounding; ``encode`` is the sRGB transfer function, or the
-    identity with ``srgb=False``. Works on Python floats and Dr.Jit arrays.
+    render``) before rounding; ``encode`` is the sRGB transfer function
+    (:func:`imaging.colour.srgb_encode_values`), or the identity with ``srgb=False``.
+    Works on Python floats and Dr.Jit arrays.
     """
+    from imaging.colour import srgb_encode_values
+
     scale = 2.0 ** exposure if isinstance(exposure, (int, float)) else dr.exp2(exposure)
     v = dr.clip(value * scale, 0.0, 1.0)
-    if srgb:
-        v = dr.select(v <= SRGB_LINEAR_LIMIT, SRGB_SLOPE * v,
-                      1.055 * dr.power(v, 1.0 / 2.4) - 0.055)
-    return v * 255.0
+    return (srgb_encode_values(v) if srgb else v) * 255.0
 
 
 def _part1by1(x):
