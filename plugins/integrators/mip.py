@@ -172,6 +172,12 @@ class MIPIntegrator(mi.SamplingIntegrator):
     (like ``numpy.nanmax``); a trilinear sample touching a NaN voxel is skipped too.
     Only volume work is traced: no surface, emitter or medium code runs.
 
+    Two accelerations give the same float32 bits as that march (tests compare them):
+    axis-aligned orthographic views reduce voxel columns of the stored volume directly
+    (``fast_axis``; only when the march's own sample arithmetic is checked to visit exactly
+    the column's voxels), and ``mip``/``minip`` rays skip 8^3 bricks whose bound cannot change
+    the running result (``skip_bricks``). ``last_path`` tells which ran.
+
     .. tabs::
         .. code-tab:: xml
 
@@ -358,6 +364,14 @@ class MIPIntegrator(mi.SamplingIntegrator):
         lies inside the brick's box (or within float rounding of it, far less than the one
         voxel of dilation), so its value is bounded and ``max(acc, v) == acc``. A brick of NaN
         voxels only (bounds -inf / +inf) holds only NaN samples, which the march skips too.
+
+        A *flat* brick (every voxel its lookups can touch holds one finite value c) is not
+        skipped unless its bound allows it, but its samples are computed from c
+        (:meth:`_flat_sample`, the texture's own arithmetic, bit for bit) in a tight inner
+        loop without reading voxels; with nearest lookups they all equal c and the whole run
+        collapses to one ``max``. Trilinear lookups in a constant region differ from c by an
+        ulp or two (weights rounded), so a ray whose maximum lies in such a region (air
+        around a phantom) must still compute those samples to get the march's exact bits.
         """
         from plugins.integrators._mip_accel import BRICK
 
@@ -378,6 +392,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         cell_size = dr.opaque(mi.Vector3f, [BRICK / nx, BRICK / ny, BRICK / nz])
         inv_d = dr.rcp(d)
         maximum = self.mode == "mip"
+        nearest = self.interpolation == "nearest"
         acc = dr.full(mi.Float, -dr.inf if maximum else dr.inf, dr.width(o))
         seen = dr.zeros(mi.UInt32, dr.width(o))
         k = dr.zeros(mi.UInt32, dr.width(o))
@@ -385,28 +400,44 @@ class MIPIntegrator(mi.SamplingIntegrator):
             t = dr.fma(mi.Float(k), dt, t0)
             p = dr.fma(d, t, o)
             cell = dr.clip(mi.Vector3i(dr.floor(p * to_cell)), 0, cells - 1)
-            index = (cell.z * cells.y + cell.y) * cells.x + cell.x
-            bound = dr.gather(mi.Float, bounds, mi.UInt32(index))
+            index = mi.UInt32((cell.z * cells.y + cell.y) * cells.x + cell.x)
+            bound = dr.gather(mi.Float, bounds, index)
+            c = dr.gather(mi.Float, flat, index)
             if dr.hint(maximum, mode="scalar"):
                 idle = bound <= acc
             else:
                 idle = bound >= acc
+            # the samples up to the ray's exit from the brick's box (texture coordinates)
+            low = mi.Vector3f(cell) * cell_size
+            exit_plane = dr.select(d > 0, low + cell_size, low)
+            t_exit = dr.select(d != 0, (exit_plane - o) * inv_d, dr.inf)
+            t_out = dr.minimum(dr.minimum(t_exit.x, t_exit.y), t_exit.z)
+            ahead = dr.minimum(dr.floor((t_out - t0) / dt) + 1.0, mi.Float(count))  # samples with t <= t_out
+            end = dr.maximum(mi.UInt32(dr.maximum(ahead, 0.0)), k + 1)
             if idle:
-                # parameter where the ray leaves the brick's box (texture coordinates)
-                low = mi.Vector3f(cell) * cell_size
-                exit_plane = dr.select(d > 0, low + cell_size, low)
-                t_exit = dr.select(d != 0, (exit_plane - o) * inv_d, dr.inf)
-                t_out = dr.minimum(dr.minimum(t_exit.x, t_exit.y), t_exit.z)
-                ahead = dr.floor((t_out - t0) / dt) + 1.0  # samples with t <= t_out
-                ahead = dr.minimum(ahead, mi.Float(count))
-                k = dr.maximum(mi.UInt32(dr.maximum(ahead, 0.0)), k + 1)
-            else:
-                c = dr.gather(mi.Float, flat, mi.UInt32(index))
-                v = mi.Float(0.0)
-                if ~dr.isnan(c):
-                    v = self._flat_sample(c, mi.Point3f(p))
+                k = end
+            elif dr.hint(nearest, mode="scalar") & ~dr.isnan(c):
+                # nearest in a flat brick: every sample up to the exit returns c exactly
+                if dr.hint(maximum, mode="scalar"):
+                    acc = dr.maximum(acc, c)
                 else:
-                    v = tex.eval(mi.Point3f(p))[0]
+                    acc = dr.minimum(acc, c)
+                seen += end - k
+                k = end
+            elif ~dr.isnan(c):
+                # a flat brick: its samples from the constant, no voxel reads, in a tight loop
+                # (a sample rounding just past the exit still reads only this brick's value c)
+                while dr.hint(k < end, label="mip_flat"):
+                    q = dr.fma(d, dr.fma(mi.Float(k), dt, t0), o)
+                    v = self._flat_sample(c, mi.Point3f(q))
+                    if dr.hint(maximum, mode="scalar"):
+                        acc = dr.maximum(acc, v)
+                    else:
+                        acc = dr.minimum(acc, v)
+                    seen += 1
+                    k += 1
+            else:
+                v = tex.eval(mi.Point3f(p))[0]
                 ok = ~dr.isnan(v)
                 if dr.hint(maximum, mode="scalar"):
                     acc = dr.select(ok, dr.maximum(acc, v), acc)
