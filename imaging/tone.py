@@ -41,7 +41,7 @@ import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
 from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
-from imaging.colour import REC709_LUMINANCE_WEIGHTS, _encode, _hsv_from_rgb, _rgb_from_hsv
+from imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_encode_values, _hsv_from_rgb, _rgb_from_hsv
 
 __all__ = [
     "NonFiniteWarning",
@@ -757,7 +757,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         k = ACES_CONSTANTS
         mapped = [(c * (k["a"] * c + k["b"])) / (c * (k["c"] * c + k["d"]) + k["e"]) for c in channels]
 
-    display = [dr.select(inf, 255.0, _encode(dr.clip(m, 0.0, 1.0)) * 255.0) for m, inf in zip(mapped, posinf)]
+    display = [dr.select(inf, 255.0, srgb_encode_values(dr.clip(m, 0.0, 1.0)) * 255.0) for m, inf in zip(mapped, posinf)]
     values = dr.ravel(Array3f(*display)) if nch == 3 else display[0]
     return _finish(TensorXf(values, tensor.shape), count, "tonemap")
 
