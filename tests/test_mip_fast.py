@@ -103,9 +103,10 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
     assert path == "columns" and _same_bits(a, b)
 
 
-@pytest.mark.parametrize("nx", [16, 9])
+@pytest.mark.parametrize("nx", [64, 16, 9])
 def test_half_key_and_float_reductions_equal_numpy(mi, nx):
-    # nx even: packed float16 pairs and integer keys; nx odd: one float16 gather a voxel
+    # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x);
+    # nx odd: one float16 gather a voxel
     from plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
 
     vol = RNG.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
@@ -118,13 +119,14 @@ def test_half_key_and_float_reductions_equal_numpy(mi, nx):
             np.testing.assert_array_equal(np.asarray(acc), expected)
             if nx % 2 == 0:
                 words = mi.UInt32(vol.view(np.uint32).ravel())
-                np.testing.assert_array_equal(reduce_half_keys(words, vol.shape, axis, mode, chunk=8), expected)
+                np.testing.assert_array_equal(np.asarray(reduce_half_keys(words, vol.shape, axis, mode, chunk=8)),
+                                              expected)
     with pytest.raises(ValueError, match="even"):
         reduce_half_keys(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
 
 
 def test_half_keys_order_every_finite_float16(mi):
-    from plugins.integrators._mip_accel import _decode_keys, _half_key
+    from plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
 
     bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
     values = bits.view(np.float16)
@@ -140,6 +142,9 @@ def test_half_keys_order_every_finite_float16(mi):
     assert np.all(np.diff(sorted_values) >= 0)
     np.testing.assert_array_equal(_decode_keys(lo), bits.view(np.float16).astype(np.float32))
     np.testing.assert_array_equal(_decode_keys(hi), bits[::-1].view(np.float16).astype(np.float32))
+    for keys, source in ((lo, bits), (hi, bits[::-1])):  # the Dr.Jit decoder, subnormals and -0 included
+        decoded = np.asarray(_key_to_float(mi.UInt32(keys)))
+        assert np.array_equal(decoded.view(np.uint32), source.view(np.float16).astype(np.float32).view(np.uint32))
 
 
 def test_views_that_are_not_axis_aligned_columns_fall_back_to_the_march(mi):
