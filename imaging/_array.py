@@ -85,7 +85,7 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 
 def eager_if_shared(function: _F) -> _F:
     """Decorator for image operations: evaluate the result before returning when the image
-    argument is not a Dr.Jit array.
+    argument is not a Dr.Jit array (or another argument is a numpy array).
 
     :func:`as_tensor` shares a C-contiguous float32 numpy array's memory with Dr.Jit (no
     copy), and Dr.Jit evaluates lazily: without this, a caller who changes its numpy array
@@ -96,7 +96,7 @@ def eager_if_shared(function: _F) -> _F:
     @functools.wraps(function)
     def wrapper(image: Any, *args: Any, **kwargs: Any) -> Any:
         result = function(image, *args, **kwargs)
-        if not dr.is_array_v(image):
+        if not dr.is_array_v(image) or any(isinstance(a, np.ndarray) for a in (*args, *kwargs.values())):
             dr.eval(result)
             dr.sync_thread()
         return result

@@ -39,7 +39,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32
 
-from imaging._array import TensorXf, as_tensor
+from imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["METHODS", "KEYS_A", "keys_kernel", "resize", "sample"]
 
@@ -134,6 +134,7 @@ def _check_options(method, a, clamp):
     return method, a, bool(clamp)
 
 
+@eager_if_shared
 def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: float = KEYS_A,
            clamp: bool = False) -> TensorXf:
     """Resize ``image`` to ``size = (width, height)`` by interpolation (pixel-centre convention).
@@ -232,6 +233,7 @@ def _pass_1d(source: Float, H: int, W: int, C: int, n_out: int, *, axis: int, a:
     return out
 
 
+@eager_if_shared
 def sample(image: Any, x: Any, y: Any, method: str = "bilinear", *, a: float = KEYS_A,
            clamp: bool = False) -> TensorXf:
     """Interpolated values of ``image`` at real positions ``(x, y)`` (pixel centres at integers).
