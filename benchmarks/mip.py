@@ -138,8 +138,10 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     integrator.set_volume(volume)
     texture_s = time.perf_counter() - t
     t = time.perf_counter()
+    peak_texture = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     integrator.brick_bounds()  # needs the voxels: build the brick grid before dropping them
     bricks_s = time.perf_counter() - t
+    peak_bricks = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     # the int16 source is no longer needed: keep only its shape (a zero-stride view)
     del vol
     volume = Volume(np.broadcast_to(np.zeros((), np.int16), shape), volume.spacing)
@@ -152,6 +154,7 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     second = time.perf_counter() - t
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     print(json.dumps({"shape": shape, "build_s": build, "texture_s": texture_s, "bricks_s": bricks_s,
+                      "peak_after_texture": peak_texture, "peak_after_bricks": peak_bricks,
                       "path": integrator.last_path, "first_s": first,
                       "steady_s": second, "peak_rss": peak, "volume_bytes": int(np.prod(shape)) * 2,
                       "texture": integrator.texture_info(), "image_max": float(image.max())}))

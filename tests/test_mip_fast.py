@@ -279,3 +279,18 @@ def test_flat_brick_samples_repeat_the_texture_arithmetic(mi, value, dtype, prec
     assert np.array_equal(flat.view(np.uint32), texture.view(np.uint32))
     if c[0] != 0:  # (half precision stores value - offset = 0 here: exact)
         assert np.count_nonzero(texture != np.float32(c[0])) > 100  # the rounding is really there
+
+
+@pytest.mark.parametrize("brick", [2, 4, 8])
+def test_brick_grid_equals_brute_force_dilated_extremes(mi, brick):
+    from plugins.integrators._mip_accel import brick_grid
+
+    vol = RNG.random((17, 9, 24)).astype(np.float32)
+    vol[RNG.random(vol.shape) < 0.1] = np.nan
+    vol[:3, :3, :3] = np.nan  # a brick of NaN only (brick 2)
+    upper, lower = brick_grid(vol, brick=brick, offset=0.25, slab=7)  # slabs that split bricks
+    for index in np.ndindex(upper.shape):
+        window = vol[tuple(slice(max(0, b * brick - 1), (b + 1) * brick + 1) for b in index)]
+        finite = window[~np.isnan(window)]
+        assert upper[index] == (np.float64(finite.max()) - 0.25 if finite.size else -np.inf)
+        assert lower[index] == (np.float64(finite.min()) - 0.25 if finite.size else np.inf)

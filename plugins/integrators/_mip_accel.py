@@ -273,12 +273,11 @@ def brick_grid(data: np.ndarray, *, brick: int = BRICK, offset: float = 0.0, sla
     partial = {np.fmax: [], np.fmin: []}
     for z in range(0, nz, slab):
         block = data[z:z + slab]
-        for fn in partial:
-            partial[fn].append(_dilated_block_reduce(block, 2, brick, fn))
+        for fn in partial:  # x and y within the slab (they need no other slab): 1/64 of its size
+            partial[fn].append(_dilated_block_reduce(_dilated_block_reduce(block, 2, brick, fn), 1, brick, fn))
     result = []
     for fn, parts in partial.items():
         reduced = np.concatenate(parts, axis=0)
-        reduced = _dilated_block_reduce(reduced, 1, brick, fn)
         reduced = _dilated_block_reduce(reduced, 0, brick, fn).astype(np.float64) - offset
         result.append(reduced)
     maximum, minimum = result
