@@ -813,8 +813,9 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     border = _check_border(border)
     tensor = as_tensor(image)
     r = size // 2
-    if r == 0:
-        return _finish(Float(tensor.array), _Window(tensor, 0, 0), border)
+    if r == 0:   # the identity, as a copy: numpy input shares the caller's memory
+        values = Float(tensor.array) if dr.is_array_v(image) else Float(np.array(tensor.array, dtype=np.float32))
+        return _finish(values, _Window(tensor, 0, 0), border)
     offsets = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
 
     def combine(taps: Taps) -> tuple[Float]:

@@ -47,6 +47,7 @@ OPERATIONS = {
     "laplacian": (filters.laplacian, _grey),
     "zero_crossings": (filters.zero_crossings, _grey),
     "median": (filters.median, _grey),
+    "median_size1": (lambda x: filters.median(x, 1), _grey),
     "threshold": (filters.threshold, _grey),
     "normalize": (filters.normalize, _grey),
     "resize_nearest": (lambda x: resample.resize(x, (30, 20), "nearest"), _grey),
