@@ -37,7 +37,7 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Int32, UInt32
+from drjit.llvm import Float, Int32, UInt32, UInt64
 
 from imaging._array import TensorXf, as_tensor, eager_if_shared
 
@@ -91,7 +91,12 @@ def _keys_weights(t: Float, a: Float) -> tuple[Float, Float, Float, Float]:
 
 
 def _axis(coordinate: Float, n: int, method: str):
-    """Integer base index (clamped taps) and fraction along one axis of length n."""
+    """Integer base index (clamped taps) and fraction along one axis of length n.
+
+    The coordinate is first clamped to [-2, n + 1]: every tap there already reads the edge
+    pixel, and far positions (beyond Int32, or float32 infinity) must not wrap around.
+    """
+    coordinate = dr.clip(coordinate, -2.0, float(n + 1))
     if method == "nearest":
         return (dr.clip(Int32(dr.floor(coordinate + 0.5)), 0, n - 1),), None
     base = dr.floor(coordinate)
@@ -200,8 +205,8 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
     yo = pixel // width
     xo = pixel - yo * width
     if method == "nearest":   # floor((dst + 0.5) * n_in / n_out) in exact integer arithmetic
-        ix = dr.minimum((2 * xo + 1) * W // (2 * width), W - 1)
-        iy = dr.minimum((2 * yo + 1) * H // (2 * height), H - 1)
+        ix = _nearest_index(xo, W, width)
+        iy = _nearest_index(yo, H, height)
         out = dr.gather(Float, tensor.array, (iy * W + ix) * C + channel)
     else:
         x = dr.fma(Float(xo), W / width, 0.5 * W / width - 0.5)
@@ -209,6 +214,14 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
         out = _interpolate_2d(tensor.array, H, W, C, x, y, channel, method, a_value, clamp)
     dr.eval(out)
     return TensorXf(out, out_shape)
+
+
+def _nearest_index(out: UInt32, n_in: int, n_out: int) -> UInt32:
+    """min(floor((2 out + 1) n_in / (2 n_out)), n_in - 1), in 64-bit integers where 32 could overflow."""
+    if (2 * n_out - 1) * n_in < 2**32:
+        return dr.minimum((2 * out + 1) * n_in // (2 * n_out), n_in - 1)
+    wide = (2 * UInt64(out) + 1) * n_in // (2 * n_out)
+    return UInt32(dr.minimum(wide, n_in - 1))
 
 
 def _pass_1d(source: Float, H: int, W: int, C: int, n_out: int, *, axis: int, a: Float, clamp: bool) -> Float:
@@ -243,7 +256,7 @@ def sample(image: Any, x: Any, y: Any, method: str = "bilinear", *, a: float = K
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
     x, y : float or array_like
         Column and row coordinates, broadcast against each other. Positions outside
-        the image see the edge pixels repeated.
+        the image see the edge pixels repeated, however far out (any finite value).
     method, a, clamp
         As in :func:`resize`.
 
@@ -280,6 +293,8 @@ def sample(image: Any, x: Any, y: Any, method: str = "bilinear", *, a: float = K
     index = dr.arange(UInt32, points * C)
     point = index // C if C > 1 else index
     channel = index - point * C if C > 1 else 0
+    # Clamped as in `_axis` already in float64, so that float32 cannot overflow to infinity.
+    xs, ys = np.clip(xs, -2.0, W + 1.0), np.clip(ys, -2.0, H + 1.0)
     px = dr.gather(Float, Float(np.ascontiguousarray(xs.ravel(), dtype=np.float32)), point)
     py = dr.gather(Float, Float(np.ascontiguousarray(ys.ravel(), dtype=np.float32)), point)
     out = _interpolate_2d(tensor.array, H, W, C, px, py, channel, method, dr.opaque(Float, a), clamp)

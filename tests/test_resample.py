@@ -179,3 +179,23 @@ def test_bad_arguments():
         sample(img, np.nan, 1)
     with pytest.raises(ValueError, match="image"):
         resize(np.ones((0, 3)), (2, 2))
+
+
+@pytest.mark.parametrize("method", ["nearest", "bilinear", "bicubic"])
+def test_far_positions_see_the_nearest_edge(method):
+    # Positions far outside the image (beyond Int32, or beyond float32's range) repeat the edge
+    # pixel on THEIR side: the right edge for huge x, the bottom edge for huge y.
+    img = np.array([[10.0, 20.0, 30.0], [40.0, 50.0, 60.0]], np.float32)
+    xs = [1e10, 3e38, 1e39, -1e10, -1e39, 2.5e9]
+    got = out(sample(img, xs, 0.0, method))
+    np.testing.assert_array_equal(got, [30.0, 30.0, 30.0, 10.0, 10.0, 30.0])
+    got = out(sample(img, 0.0, [1e12, -1e12, 1e40], method))
+    np.testing.assert_array_equal(got, [40.0, 10.0, 40.0])
+
+
+def test_nearest_resize_of_a_wide_row_is_exact():
+    # (2 x + 1) W overflows 32 bits when W * width > 2^31: the identity and a 2x upscale must hold.
+    row = np.arange(50000, dtype=np.float32)[None, :]
+    np.testing.assert_array_equal(out(resize(row, (50000, 1), "nearest")), row)
+    np.testing.assert_array_equal(out(resize(row.T, (1, 50000), "nearest")), row.T)
+    np.testing.assert_array_equal(out(resize(row, (100000, 1), "nearest")), np.repeat(row, 2, axis=1))
