@@ -87,9 +87,10 @@ def part_a(n: int, repeats: int) -> dict:
                 integrator = mi.load_dict({"type": "mip", "interpolation": interp, "step": step,
                                            "skip_bricks": skip})
                 integrator.set_volume(volume)
-                t = time.perf_counter()
-                integrator.brick_bounds() if skip else None
-                out[f"bricks_build_s"] = time.perf_counter() - t if skip else out.get("bricks_build_s")
+                if skip:
+                    t = time.perf_counter()
+                    integrator.brick_bounds()
+                    out["bricks_build_s"] = time.perf_counter() - t
                 t = time.perf_counter()
                 image, _ = _ours(volume, integrator, **view)
                 out[key + "_first"] = time.perf_counter() - t

@@ -219,8 +219,9 @@ def test_brick_skipping_equals_the_march_bit_for_bit(mi, name, mode, interpolati
 def test_brick_skipping_with_a_camera_inside_and_rays_that_miss(mi):
     vol = BRICK_VOLUMES["phantom"]
     fast, plain = (mi.load_dict({"type": "mip", "skip_bricks": s, "background": -7.0}) for s in (True, False))
+    pose = mi.ScalarTransform4f().translate([1.0, -2.0, 0.5]) @ mi.ScalarTransform4f().rotate([1, 1, 0], 35)
     for integrator in (fast, plain):
-        integrator.set_volume(vol)
+        integrator.set_volume(vol, to_world=pose)
     rng = np.random.default_rng(3)
     o = mi.Point3f(*(rng.random((3, 500)) * 60 - 30).astype(np.float32))  # box is 44 x 40 x 36
     d = rng.normal(size=(3, 500)).astype(np.float32)
