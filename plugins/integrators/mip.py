@@ -586,7 +586,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         finite = self.storage_finite()
         if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
             words = mi.UInt32(storage.numpy().view(np.uint32))  # the same memory, two halves a word
-            values = mi.Float(reduce_half_keys(words, shape, axis, self.mode))
+            values = reduce_half_keys(words, shape, axis, self.mode)
             return values, dr.full(mi.UInt32, 1, dr.width(values))
         return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
                               has_nan=not finite)
