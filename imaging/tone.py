@@ -229,7 +229,10 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     scale, exponent, top = _opaque(1.0 / (a * max_value)), _opaque(1.0 / g), _opaque(max_value)
 
     def curve(x: Float) -> Float:
-        return top * dr.power(dr.maximum(x, 0.0) * scale, exponent)
+        v = dr.maximum(x, 0.0) * scale
+        # 0 and 1 are fixed points for every exponent: dr.power gives NaN for 0^0 and 1^inf,
+        # which a gamma beyond float32's range (1/gamma = 0 or inf) would otherwise produce.
+        return top * dr.select((v == 0.0) | (v == 1.0), v, dr.power(v, exponent))
 
     return _pointwise(image, curve, max_value, "gamma")
 

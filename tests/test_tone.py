@@ -90,6 +90,16 @@ def test_gamma_non_finite_policy():
     assert none == []
 
 
+@pytest.mark.parametrize("g", [1e-45, 1e-300, 1e40, 1e300])
+def test_gamma_beyond_float32_exponents_keeps_black_and_white(g):
+    # 1/gamma overflows float32 (gamma < 3e-39) or underflows to 0 (gamma > 1e39): black stays 0
+    # and white stays white (0^0 and 1^inf must not give NaN); in between the limits of the curve.
+    x = np.array([[0.0, 1.0, 128.0, 254.0, 255.0]], np.float32)
+    limit = [0, 0, 0, 0, 255] if g < 1 else [0, 255, 255, 255, 255]
+    np.testing.assert_array_equal(a(gamma(x, g)), [limit])
+    np.testing.assert_array_equal(a(gamma(x.astype(np.uint8), g)), [limit])
+
+
 @pytest.mark.parametrize("bad", [0, -1.0, np.nan, np.inf])
 def test_gamma_rejects_bad_gamma(bad):
     with pytest.raises(ValueError, match="gamma"):
