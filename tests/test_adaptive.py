@@ -460,3 +460,27 @@ def test_divmod_without_division_is_exact(mi):
         np.testing.assert_array_equal(np.asarray(q), x_d // np.uint32(d))
         np.testing.assert_array_equal(np.asarray(r), x_d % np.uint32(d))
     assert dr.width(q) == len(x_d)
+
+
+@pytest.mark.parametrize("sampler", ["grid", "independent"])
+def test_range_nested_random_numbers_do_not_follow_the_image_plane_pattern(mi, sampler):
+    """The range criterion places its rays itself; the scene's sampler only feeds the
+    nested integrator. A pattern sampler's first 2D request is its image-plane pattern
+    (``grid`` with one sample: always (0.5, 0.5)); the adaptive integrator must consume
+    it as the film position so that the nested integrator's light samples stay uniform.
+    A diffuse plane under a large area light seen by ``direct``: always sampling the
+    light's centre overestimates the image by about 5%."""
+    T = mi.ScalarTransform4f
+    sensor = _camera(mi, 16, 16, sampler={"type": sampler, "sample_count": 1})
+    sensor["to_world"] = T().look_at(origin=[0, 0, 0.5], target=[0, 0, 0], up=[0, 1, 0]) @ T().scale([0.8, 0.8, 1])
+    scene = mi.load_dict({
+        "type": "scene", "integrator": _adaptive("direct", threshold=math.inf), "sensor": sensor,
+        "plane": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 1.0}}},
+        "light": {"type": "rectangle", "to_world": T().translate([0, 0, 1]).rotate([1, 0, 0], 180).scale(2.0),
+                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1.0}}},
+    })
+    image = np.mean([_render(mi, scene, seed=s)[0] for s in range(8)], axis=0)
+    # the camera sits between the plane and the light (facing down) and sees x, y in [-0.8, 0.8]
+    reference = np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "direct"}), spp=256, seed=1))[..., :3]
+    assert reference.mean() > 0.1
+    np.testing.assert_allclose(image.mean(), reference.mean(), rtol=0.02)

@@ -381,11 +381,20 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         self.stats["rays"].append(dr.width(finite))
         return channels, finite
 
-    def _sampler(self, sensor, seed, batch, wavefront, spp=None):
+    def _sampler(self, sensor, seed, batch, wavefront, spp=None, *, place_rays=False):
+        """The scene's sampler, forked and seeded for one batch of ``wavefront`` rays.
+
+        ``place_rays``: the integrator places the rays itself (range criterion), so the
+        film-position request (the first 2D one, a pattern sampler's image-plane pattern,
+        e.g. ``grid``'s cell centres) is drawn and dropped here; otherwise the nested
+        integrator's first light or BSDF sample would follow that pattern (biased).
+        """
         sampler = sensor.sampler().fork()
         if spp:
             sampler.set_sample_count(spp)
         sampler.seed(dr.opaque(mi.UInt32, _batch_seed(seed, batch)), wavefront)
+        if place_rays:
+            sampler.next_2d()
         return sampler
 
     def _display(self, channels):
@@ -432,7 +441,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         # (W + 1) x (H + 1) rays), step h = 2^-min_depth pixels.
         ly, lx = _divmod(dr.arange(mi.UInt32, stride * rows), stride)
         step = dr.opaque(mi.Float, 0.5 ** m)
-        sampler = self._sampler(sensor, seed, 0, stride * rows)
+        sampler = self._sampler(sensor, seed, 0, stride * rows, place_rays=True)
         lattice, finite = self._trace(scene, sensor, sampler,
                                       mi.Point2f(mi.Float(lx) * step, mi.Float(ly) * step), size, 0.5 ** m,
                                       display=True)
@@ -556,7 +565,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         gx = 2 * dr.gather(mi.UInt32, i, s) + dx
         gy = 2 * dr.gather(mi.UInt32, j, s) + dy
         position = mi.Point2f(mi.Float(gx) * step, mi.Float(gy) * step)
-        sampler = self._sampler(sensor, seed, level + 1, total)
+        sampler = self._sampler(sensor, seed, level + 1, total, place_rays=True)
         points, finite = self._trace(scene, sensor, sampler, position, size, 0.5 ** (level + 1), display=True)
         del sampler, lane, s, k, dx, dy, gx, gy, position
 
