@@ -622,6 +622,14 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorX
     return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
 
 
+def _log1p(x: Float) -> Float:
+    """log(1 + x) accurate for small x >= 0 (D. Goldberg, "What every computer scientist should
+    know about floating-point arithmetic", 1991, thm. 4): log(u) x / (u - 1) with u = 1 + x
+    rounded, and x where u rounds to 1. Plain ``log(1 + x)`` is 0 for x < 6e-8 in float32."""
+    u = 1.0 + x
+    return dr.select(u == 1.0, x, dr.log(u) * (x / (u - 1.0)))
+
+
 def _luminance(channels: list[Float]) -> Float:
     if len(channels) == 1:
         return channels[0]
@@ -739,7 +747,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
             inv_w2 = 1.0 / (w * w)  # w = inf -> 0
             mapped_l = lum * (1.0 + lum * inv_w2) / (1.0 + lum)
         else:
-            mapped_l = dr.log(1.0 + lum) / dr.log(1.0 + w)
+            mapped_l = _log1p(lum) / _log1p(w)
         ratio = dr.select(lum > 0.0, mapped_l / lum, 0.0)
         mapped = [c * ratio for c in channels]
     elif operator == "reinhard_extended":

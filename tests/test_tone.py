@@ -352,6 +352,15 @@ def test_tonemap_operators_match_reference(operator):
     assert a(tonemap(np.array([[np.float32(1e30)]]), operator)).item() > 200  # huge: no overflow
 
 
+@pytest.mark.parametrize("scale", [1e-12, 1e-9, 1e-6, 1e-3])
+def test_tonemap_log_of_a_dim_image(scale):
+    # log(1 + L) in float32 rounds to 0 for L < 6e-8: the ratio log(1 + L) / log(1 + w) must not
+    # become 0/0 (a dim image turned black); it tends to L / w, so the brightest pixel is white.
+    x = (HDR * np.float32(scale / HDR.max())).astype(np.float32)
+    np.testing.assert_allclose(a(tonemap(x, "log")), _reference(x, "log"), atol=5e-3)
+    assert a(tonemap(x, "log")).max() == pytest.approx(255.0, abs=1e-3)
+
+
 def test_tonemap_white_and_exposure():
     for operator in ("reinhard", "reinhard_extended", "log"):
         np.testing.assert_allclose(a(tonemap(HDR, operator, white=4.0)), _reference(HDR, operator, 4.0), atol=5e-3)
