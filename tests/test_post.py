@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -132,8 +134,44 @@ def test_bad_input_is_one_line_and_status_2(exr, tmp_path, capsys, args, message
         source = tmp_path / "grey.exr"
         write_exr(source, HDR[..., 0])
     status, _, err = run(capsys, source, "-o", tmp_path / "x.png", *args)
-    lines = [line for line in err.splitlines() if line.startswith("pointillist post: error")]
-    assert status == 2 and len(lines) == 1 and message in lines[0], err
+    lines = err.strip().splitlines()  # the error alone: no notice (e.g. the automatic tonemap:clip) before it
+    assert status == 2 and len(lines) == 1 and lines[0].startswith("pointillist post: error"), err
+    assert message in lines[0], err
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("steps, message", [
+    ("gamma:2,gamma=3", "gamma given twice"),
+    ("gamma:=3", "no name before '='"),
+    ("gamma:", "missing a required argument: 'gamma'"),
+    ("gamma:foo=1,gamma=2", "unexpected keyword argument 'foo'"),
+    ("stretch:1,2", "missing a required argument: 'r2'"),
+])
+def test_step_arguments_are_checked_before_any_step_runs(exr, tmp_path, capsys, steps, message):
+    # Before: "gamma:2,gamma=3" silently ran gamma 3; the others failed only after the
+    # automatic tonemap:clip had printed its notice (two lines), naming private functions.
+    from pointillist.errors import UsageError
+    from pointillist.steps import parse_steps
+
+    with pytest.raises(UsageError, match=re.escape(message)):
+        parse_steps(steps)
+    status, _, err = run(capsys, exr, "-o", tmp_path / "x.png", "--steps", steps)
+    assert status == 2 and err.count("\n") == 1 and message in err, err
+    assert "_gamma" not in err and not (tmp_path / "x.png").exists()
+
+
+def test_plot_file_is_checked_before_writing_anything(exr, tmp_path, capsys):
+    out = tmp_path / "out.png"
+    # the plot used to replace the output just written (exit 0, output lost)
+    status, _, err = run(capsys, exr, "-o", out, "--steps", "tonemap", "--plot-file", out)
+    assert status == 2 and "--output file" in err and not out.exists()
+    # a missing plot folder used to fail after the output was written
+    status, _, err = run(capsys, exr, "-o", out, "--steps", "tonemap", "--plot-file", tmp_path / "no" / "h.png")
+    assert status == 2 and "does not exist" in err and not out.exists()
+    status, _, err = run(capsys, exr, "-o", out, "--steps", "tonemap", "--plot-file", tmp_path / "h.jpg")
+    assert status == 2 and ".png" in err and not out.exists()
+    status, _, err = run(capsys, exr, "-o", out, "--steps", "tonemap", "--plot-file", exr.with_suffix(".png"))
+    assert status == 0 and out.is_file() and exr.with_suffix(".png").is_file(), err
 
 
 def test_bad_files_and_subprocess_exit_status(exr, tmp_path, cli):

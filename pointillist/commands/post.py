@@ -50,8 +50,9 @@ def _stats(image) -> str:
     return f"min {finite.min():.4g}, mean {finite.mean():.4g}, max {finite.max():.4g}"
 
 
-def _run_step(spec, image, kwargs):
-    """Run one step; bad arguments become a one-line UsageError, warnings one line on stderr."""
+def _run_step(spec, image, kwargs, notes):
+    """Run one step; bad arguments become a one-line UsageError, warnings are added to ``notes``
+    (printed, one line each, only once every step has succeeded: an error stays one line)."""
     import warnings
 
     with warnings.catch_warnings(record=True) as caught:
@@ -60,8 +61,7 @@ def _run_step(spec, image, kwargs):
             result = spec.function(image, **kwargs)
         except (TypeError, ValueError) as error:
             raise UsageError(f"--steps: {spec.name}: {error}") from None
-    for warning in caught:
-        print(f"post: warning: {warning.message}", file=sys.stderr)
+    notes.extend(f"post: warning: {warning.message}" for warning in caught)
     return result
 
 
@@ -88,6 +88,21 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--output: refusing to overwrite the input {source}")
     if not out.parent.is_dir():
         raise UsageError(f"--output: folder {out.parent} does not exist")
+    if out.is_dir():
+        raise UsageError(f"--output: {out} is a folder, expected a file name")
+    plot = None
+    if args.plot or args.plot_file:
+        plot = Path(args.plot_file) if args.plot_file else out.with_name(out.stem + "_histogram.png")
+        if plot.suffix.lower() != ".png":
+            raise UsageError(f"--plot-file: expected a .png file name, got {plot}")
+        if plot.resolve() == out.resolve():
+            raise UsageError(f"--plot-file: {plot} is the --output file")
+        from imaging.io import check_output_path
+
+        try:
+            check_output_path(plot, [source], name="--plot")
+        except ValueError as error:
+            raise UsageError(str(error)) from None
 
     from imaging import as_tensor
     from imaging.io import read_image, write_exr, write_png
@@ -103,17 +118,18 @@ def run(args: argparse.Namespace) -> int:
     current = as_tensor(image)
     known = steps()
     done = []
+    notes: list[str] = []
     for spec, kwargs in pipeline:
         if linear and not spec.linear:
-            current = _run_step(known["tonemap"], current, {"operator": "clip"})
+            current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
             linear = False
             done.append("tonemap:clip")
-            print("post: input is linear light; applied tonemap:clip first", file=sys.stderr)
+            notes.append("post: input is linear light; applied tonemap:clip first")
         elif spec.linear and not linear:
             raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
                              "but the image is already display-referred")
         previous = current
-        current = _run_step(spec, current, kwargs)
+        current = _run_step(spec, current, kwargs, notes)
         linear = False if spec.linear else linear
         done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
         if args.report:
@@ -127,9 +143,10 @@ def run(args: argparse.Namespace) -> int:
         write_png(out, current, inputs=[source])
     else:
         write_png(out, current, srgb=False, max_value=255.0, inputs=[source])
+    for note in notes:
+        print(note, file=sys.stderr)
     print(f"wrote {out} ({'; '.join(done)})")
-    if args.plot or args.plot_file:
-        plot = Path(args.plot_file) if args.plot_file else out.with_name(out.stem + "_histogram.png")
+    if plot is not None:
         histogram_plot(plot, before, current, linear_before=source.suffix.lower() == ".exr",
                        title=f"{source.name}: {'; '.join(done)}", inputs=[source])
         print(f"wrote {plot}")

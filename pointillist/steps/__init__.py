@@ -23,6 +23,7 @@ float, bool (true/false) or left as strings.
 from __future__ import annotations
 
 import importlib
+import inspect
 import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -79,10 +80,24 @@ def parse_value(text: str) -> Any:
     return text.strip()
 
 
+def _check_arguments(spec: Step, kwargs: dict[str, Any], chunk: str) -> None:
+    """UsageError, before any work, for a missing required or an unknown keyword argument."""
+    signature = inspect.signature(spec.function)
+    try:
+        signature.bind(None, **kwargs)
+    except TypeError as error:
+        names = [p.name for p in list(signature.parameters.values())[1:]
+                 if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+        raise UsageError(f"--steps: {chunk!r}: {error} (step {spec.name!r} takes "
+                         f"{', '.join(names) or 'no arguments'})") from None
+
+
 def parse_steps(text: str) -> list[tuple[Step, dict[str, Any]]]:
     """Parse a ``;``-separated step string into ``(Step, keyword arguments)`` pairs.
 
-    Raises UsageError naming the unknown step, the surplus argument or the bad syntax.
+    Raises UsageError naming the unknown step, the surplus, repeated, missing or
+    unknown argument, or the bad syntax, before any step runs (values themselves
+    are checked by the step).
     """
     known = steps()
     parsed = []
@@ -101,13 +116,19 @@ def parse_steps(text: str) -> list[tuple[Step, dict[str, Any]]]:
                 raise UsageError(f"--steps: empty argument in {chunk!r}")
             key, eq, value = arg.partition("=")
             if eq:
-                kwargs[key.strip()] = parse_value(value)
+                key = key.strip()
+                if not key:
+                    raise UsageError(f"--steps: argument {arg!r} of {chunk!r} has no name before '='")
             else:
                 if positional >= len(spec.params):
                     raise UsageError(f"--steps: step {name!r} takes at most {len(spec.params)} "
                                      f"positional argument(s) ({', '.join(spec.params) or 'none'}), got {chunk!r}")
-                kwargs[spec.params[positional]] = parse_value(key)
+                key, value = spec.params[positional], key
                 positional += 1
+            if key in kwargs:
+                raise UsageError(f"--steps: {key} given twice in {chunk!r}")
+            kwargs[key] = parse_value(value)
+        _check_arguments(spec, kwargs, chunk)
         parsed.append((spec, kwargs))
     if not parsed:
         raise UsageError("--steps: no step given")
