@@ -77,6 +77,9 @@ TONEMAP_OPERATORS: dict[str, tuple[str, ...]] = {
     "log": ("white",),
 }
 
+#: The smallest default white point: float32's smallest normal number (an all-black image).
+_TINY = float(np.finfo(np.float32).tiny)
+
 #: Linear values are clamped here after exposure: every operator is saturated far below, and
 #: the curves' squares stay finite in float32.
 _HDR_MAX = 1e15
@@ -736,7 +739,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
     def white_point(values: Float) -> Float:
         if white is not None:
             return _opaque(min(white, _HDR_MAX))
-        return dr.maximum(dr.max(values), 1e-20)  # its own reduction pass
+        return dr.maximum(dr.max(values), _TINY)  # its own reduction pass
 
     if operator == "clip":
         mapped = channels
@@ -744,16 +747,16 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         lum = _luminance(channels)
         w = white_point(lum)
         if operator == "reinhard":
-            inv_w2 = 1.0 / (w * w)  # w = inf -> 0
-            mapped_l = lum * (1.0 + lum * inv_w2) / (1.0 + lum)
+            # L (1 + L / w^2) / (1 + L) as (L + (L / w)^2) / (1 + L): 1 / w^2 overflows for w < 1e-19
+            relative = lum / w  # w = inf -> 0
+            mapped_l = (lum + relative * relative) / (1.0 + lum)
         else:
             mapped_l = _log1p(lum) / _log1p(w)
         ratio = dr.select(lum > 0.0, mapped_l / lum, 0.0)
         mapped = [c * ratio for c in channels]
     elif operator == "reinhard_extended":
         w = white_point(channels[0] if nch == 1 else dr.maximum(dr.maximum(channels[0], channels[1]), channels[2]))
-        inv_w2 = 1.0 / (w * w)
-        mapped = [c * (1.0 + c * inv_w2) / (1.0 + c) for c in channels]
+        mapped = [(c + (c / w) * (c / w)) / (1.0 + c) for c in channels]
     elif operator == "hable":
         k = HABLE_CONSTANTS
         A, B, C, D, E, F = (k[n] for n in "ABCDEF")

@@ -352,13 +352,16 @@ def test_tonemap_operators_match_reference(operator):
     assert a(tonemap(np.array([[np.float32(1e30)]]), operator)).item() > 200  # huge: no overflow
 
 
-@pytest.mark.parametrize("scale", [1e-12, 1e-9, 1e-6, 1e-3])
-def test_tonemap_log_of_a_dim_image(scale):
-    # log(1 + L) in float32 rounds to 0 for L < 6e-8: the ratio log(1 + L) / log(1 + w) must not
-    # become 0/0 (a dim image turned black); it tends to L / w, so the brightest pixel is white.
-    x = (HDR * np.float32(scale / HDR.max())).astype(np.float32)
-    np.testing.assert_allclose(a(tonemap(x, "log")), _reference(x, "log"), atol=5e-3)
-    assert a(tonemap(x, "log")).max() == pytest.approx(255.0, abs=1e-3)
+@pytest.mark.parametrize("operator", ["log", "reinhard", "reinhard_extended"])
+@pytest.mark.parametrize("scale", [1e-34, 1e-30, 1e-20, 1e-12, 1e-9, 1e-6, 1e-3])
+def test_tonemap_white_point_operators_on_a_dim_image(operator, scale):
+    # The default white point w is the image's maximum, however small: log(1 + L) in float32
+    # rounds to 0 for L < 6e-8 (the log ratio must not become 0/0, a dim image turned black), and
+    # 1 / w^2 overflows for w < 1e-19 (Reinhard must not send every pixel to white).
+    x = (np.maximum(HDR / HDR.max(), 0.1) * scale).astype(np.float32)
+    assert np.all(x >= np.finfo(np.float32).tiny)              # normal floats: no flush to zero
+    np.testing.assert_allclose(a(tonemap(x, operator)), _reference(x, operator), atol=5e-3)
+    assert a(tonemap(x, operator)).max() == pytest.approx(255.0, abs=1e-3)
 
 
 def test_tonemap_white_and_exposure():
