@@ -228,7 +228,9 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
     saved = mi.FileResolver(resolver)
     resolver.prepend(str(path.resolve().parent))
     try:
-        return mi.load_string(text, **(params or {}))
+        # parallel=False as in pointillist.scene.load_scene: the parallel loader failed about one
+        # run in ten here (hdrfilm: std::bad_alloc) and orders plugins (hence kernels) randomly.
+        return mi.load_string(text, parallel=False, **(params or {}))
     except RuntimeError as error:
         raise UsageError(f"scene {path} with {method.name}: {mitsuba_message(error)}") from None
     finally:

@@ -77,6 +77,26 @@ def test_user_scene_elsewhere_resolves_relative_paths(mi, tmp_path):
     np.testing.assert_allclose(np.asarray(mi.render(scene)), 0.25, rtol=1e-3)
 
 
+def test_configured_scene_loads_serially_like_load_scene(mi, monkeypatch):
+    """Mitsuba's parallel loader failed about one compare run in ten here ("failed to instantiate
+    film plugin of type hdrfilm: std::bad_alloc" / "basic_string::_M_create", exit 2 on a valid
+    scene; 0 failures in 40 runs after the fix) and instantiates plugins in a random order (new
+    kernels each run): compare loads serially, as :func:`pointillist.scene.load_scene` does."""
+    from pointillist.compare import load_configured_scene
+
+    calls = []
+    original = mi.load_string
+
+    def spy(text, **kwargs):
+        calls.append(kwargs)
+        return original(text, **kwargs)
+
+    monkeypatch.setattr(mi, "load_string", spy)
+    scene = load_configured_scene(ROOT / "scenes" / "default.xml", METHODS["random"], 2, {"res": "4"})
+    assert list(scene.sensors()[0].film().size()) == [4, 4]
+    assert len(calls) == 1 and calls[0].get("parallel") is False and calls[0].get("res") == "4"
+
+
 # ------------------------------------------------------------------------------ errors
 def test_image_errors_hand_worked():
     ref = np.zeros((2, 2, 3), np.float32)
