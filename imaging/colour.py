@@ -256,9 +256,12 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     """
     checked = []
     for number, name, low in ((hue, "hue", None), (saturation, "saturation", 0.0), (value, "value", 0.0)):
-        if isinstance(number, bool) or not isinstance(number, (int, float)) and not hasattr(number, "__float__"):
-            raise TypeError(f"{name}: expected a number, got {type(number).__name__} {number!r}")
-        number = float(number)
+        try:
+            if isinstance(number, (bool, np.bool_, str, bytes)):
+                raise TypeError
+            number = float(number)
+        except (TypeError, ValueError):
+            raise TypeError(f"{name}: expected a number, got {type(number).__name__} {number!r}") from None
         if number != number or number in (float("inf"), float("-inf")):
             raise ValueError(f"{name}: expected a finite number, got {number}")
         if low is not None and number < low:

@@ -86,6 +86,9 @@ def test_adjust_hsv():
         adjust_hsv(image, saturation=-1)
     with pytest.raises(ValueError, match="hue"):
         adjust_hsv(image, hue=np.inf)
+    for bad in ("10", np.array([1.0, 2.0]), [3.0]):        # not one number: named in a TypeError
+        with pytest.raises(TypeError, match="value: expected a number"):
+            adjust_hsv(image, value=bad)
 
 
 def test_luminance_uses_rec709_weights():
