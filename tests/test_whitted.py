@@ -360,3 +360,23 @@ def test_project_scenes_render(mi, name):
     scene = load_scene(SCENES / name, {"res": "32", "spp": "2", "integrator": "whitted"})
     img = _render(mi, scene)
     assert img.shape == (32, 32, 3) and np.all(np.isfinite(img)) and img.mean() > 0.02
+
+
+@pytest.mark.parametrize("name", ["whitted.xml", "cornell_phong.xml", "default.xml", "edges.xml"])
+def test_scene_parameters_in_the_header_are_accepted(mi, name):
+    """Every parameter a scene's header comment lists ("Parameters (override with -D): ...")
+    has a <default> and is accepted by ``-D`` (Mitsuba refuses unused parameters)."""
+    import re
+
+    from pointillist.scene import load_scene
+    from tests.conftest import SCENES
+
+    text = (SCENES / name).read_text()
+    listed = re.search(r"Parameters \(override with -D\):([^.]*)\.", text)
+    assert listed, f"{name}: no parameter list in the header"
+    names = [p.strip() for p in listed.group(1).replace("\n", " ").split(",") if p.strip()]
+    defaults = dict(re.findall(r'<default name="(\w+)" value="([^"]*)"', text))
+    assert set(names) == set(defaults), name
+    for param in names:
+        params = {"res": "8", "spp": "1", param: defaults[param]}
+        load_scene(SCENES / name, params)        # raises on an unknown / unused parameter
