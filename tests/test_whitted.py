@@ -345,6 +345,7 @@ def test_scene_inspection_shrinks_the_kernel(mi, dr):
     ({"ambient": [0.1, float("inf"), 0.1]}, "ambient"),
     ({"specialize": 3}, "specialize"),
     ({"max_dpeth": 3}, "max_dpeth"),
+    ({"max_depth": 2 ** 32}, "max_depth: expected an integer"),   # beyond the UInt32 depth counter
 ])
 def test_bad_parameters_are_rejected(mi, props, word):
     with pytest.raises(Exception, match=word):

@@ -15,6 +15,10 @@ __all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME",
 #: size grows with the emitter count.
 MAX_UNROLLED_EMITTERS = 16
 
+#: Largest ``max_depth``: the depth counter is a ``UInt32`` that counts up to
+#: ``max_depth + 1`` (a chain that long never ends in practice: two facing mirrors).
+MAX_DEPTH_LIMIT = 2**32 - 2
+
 _DELTA_LOBES = (mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.Null)
 
 
@@ -95,8 +99,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          emitters seen directly by the camera (no shading at all); 1 shades the
          first hit (local illumination) and lets a mirror show what emits
          behind it; ``k`` follows at most ``k`` delta bounces. This counts the
-         same light paths as ``path`` with ``max_depth = k + 1``. Must be >= 0:
-         there is no "unlimited" (two facing mirrors would never stop).
+         same light paths as ``path`` with ``max_depth = k + 1``. Must be in
+         0 .. 2^32 - 2 (the depth counter is 32-bit): there is no "unlimited"
+         (two facing mirrors would never stop).
      * - ambient
        - |spectrum|
        - Ambient radiance :math:`I_a` (default: 0); each shaded hit adds
@@ -158,9 +163,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         max_depth = props.get("max_depth", 5)
         if isinstance(max_depth, bool) or not isinstance(max_depth, int):
             raise TypeError(f"max_depth: expected an integer >= 0, got {max_depth!r}")
-        if max_depth < 0:
-            raise ValueError(f"max_depth: expected an integer >= 0 (0 shows only emitters seen "
-                             f"directly), got {max_depth}")
+        if not 0 <= max_depth <= MAX_DEPTH_LIMIT:
+            raise ValueError(f"max_depth: expected an integer in 0..{MAX_DEPTH_LIMIT} (0 shows only "
+                             f"emitters seen directly), got {max_depth}")
         self.max_depth = int(max_depth)
         ambient = spectrum_property(props, "ambient", 0.0)
         if min(ambient) < 0:
