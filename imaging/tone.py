@@ -594,8 +594,8 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
         tensor = as_tensor(image, channels=(1, 3))
         if tensor.ndim == 3 and tensor.shape[2] == 3:
             return _equalize_colour(tensor, levels, max_value)
-    else:
-        _check_shape(image.shape, "image", (1,), False)
+    else:  # uint8 grey (uint8 RGB took the HSV branch above)
+        _check_shape(image.shape, "image", (1, 3), False)
     bins, words, tail, shape, count = _bins(image, levels, max_value)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)

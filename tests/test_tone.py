@@ -296,6 +296,9 @@ def test_equalize_non_finite_and_errors():
         equalize_histogram(np.zeros((4, 4, 2)))
     with pytest.raises(ValueError, match="channels"):
         equalize_histogram(np.zeros((4, 4, 2), np.uint8))
+    for dtype in (np.float32, np.uint8):  # the same message whatever the dtype
+        with pytest.raises(ValueError, match="image: expected 1 or 3 channels, got 4"):
+            equalize_histogram(np.zeros((4, 4, 4), dtype))
 
 
 def test_histogram_matches_bincount():
