@@ -10,7 +10,8 @@ from typing import Any
 
 from pointillist.errors import UsageError
 
-__all__ = ["parse_defines", "load_scene", "mitsuba_message", "RenderTiming", "timed_render", "scene_info"]
+__all__ = ["parse_defines", "load_scene", "mitsuba_message", "RenderTiming", "timed_render", "scene_info",
+           "check_sample_count", "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -74,14 +75,47 @@ class RenderTiming:
         return asdict(self)
 
 
+#: Samples one render may take (width x height x spp): one wavefront of 32-bit lanes. Above it
+#: Mitsuba splits the render into passes, which fails (spp not a multiple of the pass count,
+#: Python integrators) or silently breaks per-lane samplers (NOTES-mitsuba.md).
+MAX_SAMPLES = 2**32 - 1
+
+
+def check_sample_count(width: int, height: int, spp: int) -> None:
+    """UsageError unless ``width x height`` has pixels and ``width x height x spp <= MAX_SAMPLES``.
+
+    Examples
+    --------
+    >>> check_sample_count(256, 256, 65535)
+    >>> check_sample_count(256, 256, 65536)
+    Traceback (most recent call last):
+    ...
+    pointillist.errors.UsageError: spp: 256x256 pixels at 65536 spp is 4294967296 samples, more than one render takes (2^32 - 1); use fewer spp, or --tiles to split the film
+    """
+    if width < 1 or height < 1:
+        raise UsageError(f"scene: the film has no pixels ({width}x{height}); expected width and height >= 1")
+    if spp < 1:
+        raise UsageError(f"spp: expected a positive integer, got {spp}")
+    total = int(width) * int(height) * int(spp)
+    if total > MAX_SAMPLES:
+        raise UsageError(f"spp: {width}x{height} pixels at {spp} spp is {total} samples, more than one render "
+                         "takes (2^32 - 1); use fewer spp, or --tiles to split the film")
+
+
 def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 0, integrator=None):
     """Render ``scene`` and return ``(image, RenderTiming)`` with the image evaluated.
 
     Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
-    time of every JIT kernel launched by this render).
+    time of every JIT kernel launched by this render). Raises UsageError before
+    rendering for a film without pixels or more than :data:`MAX_SAMPLES` samples
+    (:func:`check_sample_count`).
     """
     import drjit as dr
     import mitsuba as mi
+
+    sensor_obj = scene.sensors()[sensor]
+    width, height = (int(v) for v in sensor_obj.film().crop_size())
+    check_sample_count(width, height, int(spp) if spp else int(sensor_obj.sampler().sample_count()))
 
     dr.sync_thread()
     flag = dr.flag(dr.JitFlag.KernelHistory)

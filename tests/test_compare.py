@@ -230,3 +230,19 @@ def test_cli_compare_reference_file_and_bad_input(cli, tmp_path):
         assert r.returncode == 2 and "--spp" in r.stderr
     missing = cli("compare", tmp_path / "none.xml")
     assert missing.returncode == 2 and "no such file" in missing.stderr
+
+
+def test_cli_compare_checks_sample_counts_before_rendering(cli, tmp_path):
+    """Too many samples for one render, or a film without pixels: exit 2 and one line before any
+    render or progress bar starts (they used to fail mid-sweep: a bar line, then an internal error)."""
+    out = tmp_path / "c"
+    big = cli("compare", EDGES, "-D", "res=4", "--spp", "1,300000000", "--samplers", "random", "--out", out)
+    assert big.returncode == 2 and big.stderr.count("\n") == 1, big.stderr
+    assert "4x4 pixels at 300000000 spp is 4800000000 samples" in big.stderr
+    ref = cli("compare", EDGES, "-D", "res=4", "--spp", "1", "--reference-spp", "300000000", "--out", out)
+    assert ref.returncode == 2 and ref.stderr.count("\n") == 1 and "300000000 spp" in ref.stderr, ref.stderr
+    empty = cli("compare", EDGES, "-D", "res=0", "--spp", "1", "--samplers", "random", "--out", out)
+    assert empty.returncode == 2 and "no pixels" in empty.stderr and empty.stderr.count("\n") == 1, empty.stderr
+    huge = cli("compare", EDGES, "--spp", str(2**32), "--out", out)
+    assert huge.returncode == 2 and "1..2^32-1" in huge.stderr
+    assert not out.exists()

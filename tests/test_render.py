@@ -69,6 +69,11 @@ def _bad(capsys, *argv):
     (["render", DEFAULT, "-o", "x.png"], "expected a .exr file name"),
     (["render", DEFAULT, "-o", "/nonexistent-folder/x.exr"], "does not exist"),
     (["nosuchcommand"], "invalid choice"),
+    # These used to end in "internal error" (exit 1): a uint32 overflow, Mitsuba's multi-pass
+    # split (sample_count not a multiple of the pass count), a film without pixels.
+    (["render", DEFAULT, "--spp", str(2**32)], "expected an integer in 1..2^32-1"),
+    (["render", DEFAULT, "-D", "res=64", "--spp", str(2**20)], "64x64 pixels at 1048576 spp is 4294967296"),
+    (["render", DEFAULT, "-D", "res=0"], "the film has no pixels (0x0)"),
 ])
 def test_render_bad_input_exit_2_one_line(capsys, tmp_path, mi, argv, message):
     code, err = _bad(capsys, *argv)

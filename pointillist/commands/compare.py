@@ -28,6 +28,8 @@ def spp_list(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
     if not values or min(values) < 1:
         raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    if max(values) >= 2**32:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers in 1..2^32-1, got {text!r}")
     return sorted(set(values))
 
 
@@ -62,8 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pointillist.compare import Task, render_reference, resolve_methods, run_sweep, write_report
-    from pointillist.scene import parse_defines
+    from pointillist.compare import METHODS, Task, render_reference, resolve_methods, run_sweep, write_report
+    from pointillist.scene import check_sample_count, parse_defines
 
     params = parse_defines(args.defines)
     methods = resolve_methods(args.samplers)
@@ -75,7 +77,6 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--out: {out} exists and is not a folder")
     if args.reference and not Path(args.reference).is_file():
         raise UsageError(f"--reference: no such file: {args.reference}")
-    out.mkdir(parents=True, exist_ok=True)
 
     tasks = []
     for method in methods:
@@ -83,6 +84,13 @@ def run(args: argparse.Namespace) -> int:
         if not values:
             raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
         tasks += [Task(method.name, v, seed) for v in values for seed in range(args.seeds)]
+    size = _scene_size(scene, params)
+    for spp in [t.value for t in tasks if METHODS[t.method].parameter == "spp"] + (
+            [] if args.reference else [args.reference_spp]):
+        check_sample_count(*size, int(spp))  # before any render starts (and its progress bar)
+    if args.reference:
+        _check_reference(Path(args.reference), size)
+    out.mkdir(parents=True, exist_ok=True)
 
     if args.workers or args.scheduler:
         from pointillist.distributed import open_client, prerender_sweep
@@ -99,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"reference: {args.reference_spp} spp with Mitsuba's stratified sampler "
               f"(cached in {out / 'reference'})", flush=True)
         reference = render_reference(str(scene), params, str(out), args.reference_spp)
-    _check_reference(reference, scene, params)
+        _check_reference(reference, size)
 
     records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
                         progress=not args.no_progress)
@@ -111,23 +119,28 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_reference(reference: Path, scene: Path, params: dict) -> None:
-    """The reference must have the render size; read its header only through read_exr."""
-    from imaging.io import read_exr
-
-    try:
-        image = read_exr(reference).image
-    except ValueError as error:
-        raise UsageError(f"--reference: {error}") from None
+def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
+    """``(width, height)`` the scene renders (loads it once: bad scenes fail before any render)."""
     import pointillist
 
     pointillist.setup()
     from pointillist.scene import load_scene, scene_info
 
     info = scene_info(load_scene(scene, params))
-    if image.shape[:2] != (info["height"], info["width"]):
+    return info["width"], info["height"]
+
+
+def _check_reference(reference: Path, size: tuple[int, int]) -> None:
+    """The reference must have the render size ``(width, height)``."""
+    from imaging.io import read_exr
+
+    try:
+        image = read_exr(reference).image
+    except ValueError as error:
+        raise UsageError(f"--reference: {error}") from None
+    if image.shape[:2] != (size[1], size[0]):
         raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
-                         f"renders {info['width']}x{info['height']}")
+                         f"renders {size[0]}x{size[1]}")
 
 
 __all__ = ["NAME", "HELP", "add_arguments", "run", "spp_list"]

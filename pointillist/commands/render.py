@@ -18,13 +18,15 @@ HELP = "render a scene XML to EXR (+ PNG preview)"
 
 
 def positive_int(text: str) -> int:
-    """argparse type: an int >= 1."""
+    """argparse type: an int in 1..2^32-1 (a larger count overflows Mitsuba's 32-bit counters)."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    if value >= 2**32:
+        raise argparse.ArgumentTypeError(f"expected an integer in 1..2^32-1, got {value}")
     return value
 
 
