@@ -65,7 +65,7 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float, Float64, Int32, UInt8, UInt32
+from drjit.llvm import Float, Float64, Int32, UInt8, UInt32
 
 from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
 from imaging.filters import threshold
@@ -446,9 +446,9 @@ def _diffuse_core(values: Float, height: int, width: int, channels: int,
         t = dr.select(wrap, 0, t)
         return step + 1, t, y, slot, windows, own
 
-    state = dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
-                          labels=("step", "t", "y", "slot", "windows", "own"), mode="symbolic",
-                          label="error_diffusion")
+    dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
+                  labels=("step", "t", "y", "slot", "windows", "own"), mode="symbolic",
+                  label="error_diffusion")
     dr.eval(out)
     return out
 

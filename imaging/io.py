@@ -26,7 +26,8 @@ import numpy as np
 
 from imaging._array import as_tensor, to_numpy
 
-__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path"]
+__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
+           "to_8bit"]
 
 #: EXR header attributes that OpenEXR owns; metadata may not use these names.
 _RESERVED = {
@@ -85,8 +86,13 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
     return path
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` and rename the temporary file over ``path``."""
+def atomic_write(path: str | os.PathLike, write) -> None:
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``.
+
+    The one way this project writes files: a reader never sees a half-written file, and a
+    failed write leaves the old file (if any) and no temporary file behind.
+    """
+    path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
     os.close(fd)
     try:
@@ -225,7 +231,7 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         with OpenEXR.File(header, channels) as exr:
             exr.write(tmp)
 
-    _atomic_write(path, write)
+    atomic_write(path, write)
 
 
 def to_8bit(image: Any, *, srgb: bool = True, max_value: float = 1.0) -> np.ndarray:
@@ -276,7 +282,7 @@ def write_png(path: str | os.PathLike, image: Any, *, srgb: bool = True, max_val
     pixels = to_8bit(image, srgb=srgb, max_value=max_value)
     if pixels.ndim == 3 and pixels.shape[2] == 1:
         pixels = pixels[..., 0]
-    _atomic_write(path, lambda tmp: Image.fromarray(pixels).save(tmp, format="PNG"))
+    atomic_write(path, lambda tmp: Image.fromarray(pixels).save(tmp, format="PNG"))
 
 
 def read_image(path: str | os.PathLike) -> EXRImage:

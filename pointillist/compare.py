@@ -319,9 +319,9 @@ def _load_record(path: Path, key: str, exr: Path) -> RenderRecord | None:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    from imaging.io import atomic_write
+
+    atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
 
 def render_one(scene_path: str, method: str, value: float, seed: int, params: dict[str, str] | None,
@@ -529,18 +529,21 @@ _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "ex
 def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *, scene: str,
                  reference: str, title: str | None = None) -> dict[str, Path]:
     """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``."""
+    from imaging.io import atomic_write
+
     out = Path(out_dir)
     paths = {"csv": out / "results.csv", "md": out / "results.md",
              "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png"}
-    tmp = paths["csv"].with_name(".results.csv.tmp")
-    with open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for record in records:
-            row = record.as_dict()
-            row["exr"] = f"renders/{record.exr}"
-            writer.writerow(row)
-    os.replace(tmp, paths["csv"])
+    def write_csv(tmp: str) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
+            writer.writeheader()
+            for record in records:
+                row = record.as_dict()
+                row["exr"] = f"renders/{record.exr}"
+                writer.writerow(row)
+
+    atomic_write(paths["csv"], write_csv)
 
     rows = summarise(records)
     fitted = slopes(rows)
@@ -563,9 +566,7 @@ def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *,
     for budget, ranked in equal_time_ranking(rows):
         text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
         lines.append(f"| {budget:.3f} | {text} |")
-    tmp = paths["md"].with_name(".results.md.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, paths["md"])
+    atomic_write(paths["md"], lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
 
     _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
     _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])
@@ -573,6 +574,8 @@ def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *,
 
 
 def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
+    from imaging.io import atomic_write
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -603,7 +606,7 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    finally:
+        plt.close(fig)

@@ -59,7 +59,6 @@ import os
 import pickle
 import re
 import socket
-import tempfile
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
@@ -530,16 +529,13 @@ class ResultCache:
 
     def put(self, key: str, result) -> None:
         """Store ``result`` under ``key`` (atomically)."""
-        target = self.path(key)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=self.directory)
-        try:
-            with os.fdopen(fd, "wb") as handle:
+        from imaging.io import atomic_write
+
+        def write(tmp: str) -> None:
+            with open(tmp, "wb") as handle:
                 pickle.dump(result, handle, protocol=pickle.HIGHEST_PROTOCOL)
-            os.replace(tmp, target)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
+
+        atomic_write(self.path(key), write)
 
     def __len__(self) -> int:
         return sum(1 for _ in self.directory.glob("*.pkl"))

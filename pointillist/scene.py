@@ -15,11 +15,15 @@ __all__ = ["parse_defines", "load_scene", "mitsuba_message", "RenderTiming", "ti
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
+_TRACEBACK = re.compile(r"Traceback \(most recent call last\):\n(?:[ \t].*\n)*(?P<exception>\S.*)")
 
 
 def mitsuba_message(error: BaseException) -> str:
     """One line from a Mitsuba exception: source-location prefixes dropped, lines joined."""
     text = _PREFIX.sub("", str(error))
+    # A Python plugin's exception reaches us as Mitsuba's message with the Python traceback
+    # pasted in: keep the text before it and the exception's own last line.
+    text = _TRACEBACK.sub(lambda m: m.group("exception"), text)
     return " ".join(part.strip(" -") for part in text.splitlines() if part.strip())
 
 
@@ -129,7 +133,6 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
         if integrator is not None:
             kwargs["integrator"] = integrator
         image = mi.render(scene, **kwargs)
-        traced = time.perf_counter()
         dr.eval(image)
         dr.sync_thread()
         end = time.perf_counter()

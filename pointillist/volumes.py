@@ -212,7 +212,7 @@ def write_vol(path: str | os.PathLike, volume: Volume | np.ndarray, *, spacing: 
         volume = Volume(volume.data, spacing)
     nx, ny, nz = volume.shape_xyz
     ex, ey, ez = volume.extent
-    from imaging.io import _atomic_write, check_output_path
+    from imaging.io import atomic_write, check_output_path
 
     path = check_output_path(path, name="path")
 
@@ -222,7 +222,7 @@ def write_vol(path: str | os.PathLike, volume: Volume | np.ndarray, *, spacing: 
             for z in range(nz):  # slab-wise: no float32 copy of a whole 16-bit volume
                 f.write(np.ascontiguousarray(volume.data[z], dtype="<f4").tobytes())
 
-    _atomic_write(path, write)
+    atomic_write(path, write)
 
 
 def read_npy(path: str | os.PathLike, *, spacing: Any = (1.0, 1.0, 1.0)) -> Volume:

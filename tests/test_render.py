@@ -98,3 +98,11 @@ def test_render_refuses_to_overwrite_its_input(capsys, tmp_path, mi):
     code, err = _bad(capsys, "render", scene, "-o", scene)
     assert code == 2 and "refusing to overwrite" in err[0]
     assert scene.read_text() == DEFAULT.read_text()
+
+
+def test_plugin_constructor_errors_are_one_line_without_traceback(capsys, mi):
+    # Mitsuba pastes a Python plugin's traceback into its message; the CLI keeps the exception line.
+    code, err = _bad(capsys, "render", DEFAULT, "-D", "integrator=adaptive", "-o", "unused.exr")
+    assert code == 2 and len(err) == 1
+    assert "Traceback" not in err[0] and 'File "' not in err[0]
+    assert 'integrator plugin of type "adaptive": ValueError: adaptive: expected exactly one nested integrator' in err[0]

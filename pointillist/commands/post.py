@@ -161,7 +161,7 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from imaging.io import check_output_path
+    from imaging.io import atomic_write, check_output_path
 
     path = check_output_path(path, inputs, name="--plot")
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
@@ -188,7 +188,7 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
         ax.set_ylabel("pixels")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    finally:
+        plt.close(fig)
