@@ -10,7 +10,7 @@ import numpy as np
 
 from pointillist.volumes import Volume, load_volume, volume_texture
 
-__all__ = ["MIPIntegrator", "parse_window", "colormap_lut", "apply_window", "WINDOW_PRESETS", "MODES"]
+__all__ = ["MIPIntegrator", "parse_window", "colormap_lut", "apply_window", "window_image", "WINDOW_PRESETS", "MODES"]
 
 #: Projection modes (the ones napari and VTK offer).
 MODES = ("mip", "minip", "average")
@@ -93,6 +93,13 @@ def apply_window(values, level: float, width: float, lut: np.ndarray | None = No
         b = dr.gather(mi.Float, table, (i0 + 1) * 3 + c)
         rgb.append(dr.fma(w, b - a, a))
     return mi.Color3f(*rgb)
+
+
+def window_image(image, level: float, width: float, lut: np.ndarray | None = None) -> np.ndarray:
+    """:func:`apply_window` of a 2-D array of raw values: display RGB ``(H, W, 3)`` float32 in 0..1."""
+    values = np.ascontiguousarray(image, dtype=np.float32)
+    rgb = apply_window(mi.Float(values.ravel()), level, width, lut)
+    return np.stack([np.asarray(c) for c in rgb], axis=-1).reshape(*values.shape, 3)
 
 
 def _scalar_transform(value) -> mi.ScalarTransform4f:

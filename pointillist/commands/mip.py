@@ -329,13 +329,8 @@ def _write(path: Path, image: np.ndarray, volume, args, window, lut, view) -> np
                 "view": view["view"] or f"azimuth={view.get('azimuth', 0):g},elevation={view.get('elevation', 0):g}"}
         write_exr(path, image.astype(np.float32), meta, inputs=[args.volume])
         return None
-    import drjit as dr
-    import mitsuba as mi
+    from plugins.integrators.mip import window_image
 
-    from plugins.integrators.mip import apply_window
-
-    rgb = apply_window(mi.Float(np.ascontiguousarray(image, dtype=np.float32).ravel()), *window, lut)
-    pixels = np.stack([np.asarray(c) for c in rgb], axis=-1).reshape(*image.shape, 3)
-    dr.sync_thread()
+    pixels = window_image(image, *window, lut)
     write_png(path, pixels, srgb=False, max_value=1.0, inputs=[args.volume])
     return to_8bit(pixels, srgb=False)
