@@ -453,25 +453,28 @@ def _diffuse_core(values: Float, height: int, width: int, channels: int,
     return out
 
 
+def _pixels(image: Any) -> tuple[UInt8 | Float, tuple[int, ...]]:
+    """The flat pixel values and shape of ``image``: a uint8 numpy image as its bytes (``UInt8``,
+    shared, no float32 copy), anything else through :func:`as_tensor` (``Float``)."""
+    if _is_uint8(image):
+        _check_shape(image.shape, "image", None, False)
+        return UInt8(np.ascontiguousarray(image).reshape(-1)), tuple(image.shape)
+    tensor = as_tensor(image)
+    return tensor.array, tuple(tensor.shape)
+
+
 def _diffuse(image: Any, kernel: DiffusionKernel, *, level: float, levels: int, serpentine: bool,
              linear: bool, carry: bool = False) -> TensorXf:
     level = _check_level(level)
     levels = _check_levels(levels)
     serpentine = _check_bool(serpentine, "serpentine")
     linear = _check_bool(linear, "linear")
+    values, shape = _pixels(image)  # uint8 bytes are widened as the loop reads them
     clip = False
-    if _is_uint8(image) and not linear:  # bytes, widened as the loop reads them: no float32 copy
-        _check_shape(image.shape, "image", None, False)
-        shape = tuple(image.shape)
-        values = UInt8(np.ascontiguousarray(image).reshape(-1))
-    else:
-        tensor = as_tensor(image)
-        shape = tuple(tensor.shape)
-        values = tensor.array
-        if linear:
-            values = _srgb_decode_255(_clipped(values))
-        else:  # clipped in the diffusion loop itself: no separate pass over the image
-            clip = True
+    if linear:
+        values = _srgb_decode_255(_clipped(Float(values)))
+    elif not isinstance(values, UInt8):  # clipped in the diffusion loop itself: no separate pass
+        clip = True
     dr.eval(values)
     height, width = shape[0], shape[1]
     channels = shape[2] if len(shape) == 3 else 1
@@ -864,15 +867,8 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
 
 
 def _ordered(image: Any, template: np.ndarray, levels: int, linear: bool) -> TensorXf:
-    if _is_uint8(image):
-        _check_shape(image.shape, "image", None, False)
-        shape = tuple(image.shape)
-        # One byte per value, widened to float inside the kernel (no float32 copy of the image).
-        values = Float(UInt8(np.ascontiguousarray(image).reshape(-1)))
-    else:
-        tensor = as_tensor(image)
-        shape = tuple(tensor.shape)
-        values = tensor.array
+    values, shape = _pixels(image)
+    values = Float(values)  # uint8: one byte per value, widened inside the kernel (no float32 copy)
     if linear:
         values = _srgb_decode_255(_clipped(values))
     channels = shape[2] if len(shape) == 3 else 1
