@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pointillist.commands.render import positive_int
+from pointillist.commands._types import positive_int
 from pointillist.errors import UsageError
 
 NAME = "compare"

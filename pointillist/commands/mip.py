@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pointillist.commands._types import finite_float, positive_float, positive_int
 from pointillist.errors import UsageError
 
 NAME = "mip"
@@ -162,35 +163,14 @@ def _size(text: str) -> tuple[int, int]:
     return values[0], values[1]
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from pointillist.commands.render import positive_int
 
     parser.add_argument("volume", help="volume file (.vol, .npy, .nrrd, .nii[.gz]) or DICOM series folder")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
     views.add_argument("--view", choices=sorted(NAMED_VIEWS), help="named view (default: axial)")
-    views.add_argument("--azimuth", type=_finite_float, help="azimuth in degrees (0 = coronal)")
-    parser.add_argument("--elevation", type=_finite_float, default=None, help="elevation in degrees")
+    views.add_argument("--azimuth", type=finite_float, help="azimuth in degrees (0 = coronal)")
+    parser.add_argument("--elevation", type=finite_float, default=None, help="elevation in degrees")
     sizes = parser.add_mutually_exclusive_group()
     sizes.add_argument("--size", type=_size, default=(512, 512), metavar="N|W,H",
                        help="image size; the volume is fitted inside (default 512)")
@@ -202,11 +182,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="display window level,width (e.g. 40,400) or brain|soft|lung|bone|subdural|angio "
                              "(default: the projection's value range)")
     parser.add_argument("--colormap", default="grey", help="grey or a matplotlib colormap (PNG only)")
-    parser.add_argument("--step", type=_positive_float, default=0.5, help="marching step in voxels (default 0.5)")
+    parser.add_argument("--step", type=positive_float, default=0.5, help="marching step in voxels (default 0.5)")
     parser.add_argument("--spacing", help="override voxel spacing sx,sy,sz")
-    parser.add_argument("--perspective", type=_positive_float, metavar="FOV",
+    parser.add_argument("--perspective", type=positive_float, metavar="FOV",
                         help="perspective camera with this field of view in degrees (default orthographic)")
-    parser.add_argument("--background", type=_finite_float, help="raw value of rays missing the volume")
+    parser.add_argument("--background", type=finite_float, help="raw value of rays missing the volume")
     parser.add_argument("--precision", choices=("auto", "half", "single"), default="auto",
                         help="texture storage (auto: half precision where exact)")
     parser.add_argument("--turntable", type=positive_int, metavar="N",

@@ -11,34 +11,11 @@ import argparse
 import time
 from pathlib import Path
 
+from pointillist.commands._types import non_negative_int, positive_int
 from pointillist.errors import UsageError
 
 NAME = "render"
 HELP = "render a scene XML to EXR (+ PNG preview)"
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an int in 1..2^32-1 (a larger count overflows Mitsuba's 32-bit counters)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    if value >= 2**32:
-        raise argparse.ArgumentTypeError(f"expected an integer in 1..2^32-1, got {value}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: an int >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0 or value >= 2**32:
-        raise argparse.ArgumentTypeError(f"expected an integer in 0..2^32-1, got {value}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

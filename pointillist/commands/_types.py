@@ -1,0 +1,52 @@
+"""argparse ``type=`` converters shared by the sub-commands (a bad value: exit 2, one line)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+__all__ = ["positive_int", "non_negative_int", "positive_float", "finite_float"]
+
+#: Counts (samples, seeds) above this overflow Mitsuba's 32-bit counters.
+UINT32_MAX = 2**32 - 1
+
+
+def _parse(text: str, kind: type, expected: str):
+    try:
+        return kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+
+
+def positive_int(text: str) -> int:
+    """An int in 1..2^32-1."""
+    value = _parse(text, int, "a positive integer")
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    if value > UINT32_MAX:
+        raise argparse.ArgumentTypeError(f"expected an integer in 1..2^32-1, got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """An int in 0..2^32-1."""
+    value = _parse(text, int, "a non-negative integer")
+    if value < 0 or value > UINT32_MAX:
+        raise argparse.ArgumentTypeError(f"expected an integer in 0..2^32-1, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite float > 0."""
+    value = _parse(text, float, "a positive number")
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite float."""
+    value = _parse(text, float, "a number")
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
