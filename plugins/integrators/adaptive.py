@@ -413,8 +413,10 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
     #      prefix sum: a neighbour is a sibling or a child of the parent's neighbour)
     #      and their point counts;
     #   2. an inclusive prefix sum of the counts (one host read: the ray batch size);
-    #   3. the ray batch: each lane finds its square by binary search in that prefix sum
-    #      (a symbolic loop), places its point and runs the nested integrator;
+    #   3. the ray batch: a scatter marks where each square's points start and an
+    #      inclusive prefix sum of the marks gives each lane its square (before: a
+    #      binary search per lane, 30% more time per ray), then the lane places its
+    #      point and runs the nested integrator;
     #   4. per square: its five new samples, what the split adds to its pixel, the
     #      sub-squares to split next (flags), and the slots of its points;
     #   5. per run of squares in one pixel: the sum of those additions (one lane per
@@ -554,10 +556,13 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         self.stats["squares"].append(n)
         start = end - points_of
 
-        # 3. The ray batch: lane t belongs to the first square whose range ends after t.
+        # 3. The ray batch: lane t belongs to square s = the number of squares s' > 0 whose
+        # points start at or before t (marks at the starts, then an inclusive prefix sum).
         lane = dr.arange(mi.UInt32, total)
-        s = _search(lambda k: dr.gather(mi.UInt32, end, k) <= lane, o_n, total)
-        k = lane - dr.gather(mi.UInt32, end, s) + dr.gather(mi.UInt32, points_of, s)
+        marks = dr.zeros(mi.UInt32, total)
+        dr.scatter(marks, mi.UInt32(1), start, start > 0)
+        s = dr.cumsum(marks)
+        k = lane - dr.gather(mi.UInt32, start, s)
         k = dr.select((k == 3) & dr.gather(mi.Bool, found_r, s), mi.UInt32(4), k)
         dx = dr.gather(mi.UInt32, mi.UInt32(_NEW_DX), k)
         dy = dr.gather(mi.UInt32, mi.UInt32(_NEW_DY), k)
@@ -753,24 +758,6 @@ def _divmod(x, d: int):
     inverse = dr.opaque(mi.Float64, 1.0 / d)
     q = mi.UInt32(dr.floor((mi.Float64(x) + 0.5) * inverse))
     return q, x - q * dr.opaque(mi.UInt32, d)
-
-
-def _search(pred, n, width):
-    """First index k in [0, n) where the monotone predicate ``pred(k)`` is false (``n``
-    when it is true everywhere), for ``width`` lanes at once. A symbolic loop with the
-    bound ``n`` opaque, unlike ``dr.binary_search`` whose Python loop bakes the range
-    (and its log2 length) into the kernel and recompiles it for every new size."""
-    def cond(lo, hi):
-        return lo < hi
-
-    def body(lo, hi):
-        mid = (lo + hi) >> 1
-        go = pred(mid)
-        return dr.select(go, mid + 1, lo), dr.select(go, hi, mid)
-
-    lo, _ = dr.while_loop(state=(dr.zeros(mi.UInt32, width), dr.zeros(mi.UInt32, width) + n),
-                          cond=cond, body=body, label="adaptive_search")
-    return lo
 
 
 def _add_by_pixel(totals, pixel, values, n) -> None:
