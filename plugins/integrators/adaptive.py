@@ -15,6 +15,8 @@ from statistics import NormalDist
 import drjit as dr
 import mitsuba as mi
 
+from plugins.integrators._common import develop_film
+
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
 
 #: Name of the extra output channel (AOV / EXR layer) holding each pixel's sample count.
@@ -345,12 +347,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         block = mi.ImageBlock(mi.TensorXf(data, (height, width, channel_count)), film.crop_offset())
         film.put_block(block)
         self.stats["total_seconds"] = time.perf_counter() - start
-        if not develop:
-            return mi.TensorXf()
-        image = film.develop()
-        if evaluate:
-            dr.eval(image)
-        return image
+        return develop_film(film, develop, evaluate)
 
     # -- tracing -------------------------------------------------------------------------
     def _trace(self, scene, sensor, sampler, position, size, diff_scale, display=False):

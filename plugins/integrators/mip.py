@@ -8,6 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from plugins.integrators._common import develop_film
 from pointillist.volumes import Volume, load_volume, volume_texture
 
 __all__ = ["MIPIntegrator", "parse_window", "colormap_lut", "apply_window", "window_image", "WINDOW_PRESETS", "MODES"]
@@ -716,12 +717,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         block = film.create_block()
         block.put(pos, [], self.display(value), 1.0, 1.0)
         film.put_block(block)
-        if not develop:
-            return mi.TensorXf()
-        image = film.develop()
-        if evaluate:
-            dr.eval(image)
-        return image
+        return develop_film(film, develop, evaluate)
 
     def aov_names(self):
         return []
