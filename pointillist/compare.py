@@ -39,6 +39,7 @@ __all__ = [
     "Method", "METHODS", "MITSUBA_SAMPLERS", "register_method", "resolve_methods", "configure_scene",
     "scene_key", "load_configured_scene", "Task", "RenderRecord", "render_one", "task_paths",
     "render_reference", "image_errors", "fit_slope", "run_sweep", "summarise", "equal_time_ranking",
+    "equal_error_ranking", "setting_label",
     "write_report", "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER",
     "REFERENCE_SEED",
 ]
@@ -259,8 +260,10 @@ class Task:
 class RenderRecord:
     """What :func:`render_one` returns (and stores as JSON beside the EXR).
 
-    Times in seconds: ``time`` is the render's wall time without JIT compilation
-    (``total - compile``; trace + kernel execution), the figure the comparison plots.
+    Times in seconds: ``time`` is the timed render's wall time without its JIT
+    compilation (trace + kernel execution), the figure the comparison plots;
+    ``compile`` is its JIT compilation plus, for a method's first render in a process,
+    that of the untimed warm-up render (:func:`render_one`).
     ``spp`` is the samples per pixel actually taken (the sampler may round the
     requested count; adaptive methods report their mean).
     """
@@ -324,13 +327,24 @@ def _write_json(path: Path, data: dict) -> None:
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
 
+#: Methods rendered at least once in this process (:func:`render_one`'s warm-up).
+_WARMED: set[str] = set()
+
+
 def render_one(scene_path: str, method: str, value: float, seed: int, params: dict[str, str] | None,
-               out_dir: str, key: str | None = None) -> RenderRecord:
+               out_dir: str, key: str | None = None, warm_up: bool = True) -> RenderRecord:
     """Render one task of the sweep and write its EXR and JSON record; picklable.
 
     Skips the render when ``out_dir/renders/<key>/<task>.exr`` and ``.json`` exist
     (``key``: :func:`scene_key` of the scene file and parameters), returning the
     stored record with ``cached=True``.
+
+    The first render of a method in a process (with ``warm_up``) is preceded by the
+    same render untimed: besides JIT compilation (reported apart anyway), a first
+    render pays one-off costs (plugin imports, first traces, the allocator's growth;
+    measured on scenes/edges.xml: the first ``adaptive`` render 47 ms, the next ones
+    29 ms), which would otherwise land on whichever sweep point comes first. The
+    warm-up's compile time is added to the record's ``compile``.
 
     Parameters
     ----------
@@ -348,6 +362,8 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
         The comparison folder.
     key : str, optional
         :func:`scene_key` of the scene and params (computed when omitted).
+    warm_up : bool
+        Render untimed first if ``method`` has not rendered in this process yet.
     """
     import pointillist
 
@@ -366,6 +382,10 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     spec = METHODS[method]
     scene = load_configured_scene(scene_path, spec, value, params)
     spp = int(value) if spec.parameter == "spp" else None
+    warm_compile = 0.0
+    if warm_up and method not in _WARMED:
+        warm_compile = timed_render(scene, spp=spp, seed=int(seed))[1].compile
+        _WARMED.add(method)
     image, timing = timed_render(scene, spp=spp, seed=int(seed))
     info = scene_info(scene)  # after the render: the sampler's own rounding of spp applies
     info.update(method=method, value=float(value), seed=int(seed))
@@ -380,7 +400,7 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     record = RenderRecord(
         method=method, value=float(value), seed=int(seed), spp=samples, exr=f"{key}/{exr.name}",
         width=int(info["width"]), height=int(info["height"]), trace=timing.trace,
-        compile=timing.compile, execute=timing.execute, total=timing.total,
+        compile=timing.compile + warm_compile, execute=timing.execute, total=timing.total,
         time=max(timing.total - timing.compile, 0.0), kernels=timing.kernels,
         cache_hits=timing.cache_hits, scene_key=key)
     _write_json(record_path, record.as_dict())
@@ -391,7 +411,7 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
                      key: str | None = None) -> Path:
     """Render (or reuse) the reference: :data:`REFERENCE_SAMPLER` at ``spp``; returns its EXR."""
     record = render_one(scene_path, REFERENCE_SAMPLER, spp, REFERENCE_SEED, params,
-                        str(Path(out_dir) / "reference"), key)
+                        str(Path(out_dir) / "reference"), key, warm_up=False)
     return Path(out_dir) / "reference" / "renders" / record.exr
 
 
@@ -522,6 +542,52 @@ def equal_time_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] 
     return ranking
 
 
+def equal_error_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
+                        metric: str = "rmse") -> list[tuple[float, list[tuple[str, float, float]]]]:
+    """For each error budget, the methods ranked by the shortest time reaching it.
+
+    The dual of :func:`equal_time_ranking`: a method reaches budget ``E`` with its
+    fastest sweep point whose mean ``metric`` is at most ``E``; methods with no point
+    that accurate are left out of that budget. Each entry is ``(method, value,
+    time)``. Default budgets: the errors of the first method's points in ``rows``
+    (e.g. ``jitter`` at each spp, so a line answers "how long does each method take
+    to get as close as jitter at 16 spp").
+
+    Examples
+    --------
+    >>> rows = [{"method": "a", "value": 4, "time": 1.0, "rmse": 0.2},
+    ...         {"method": "b", "value": 64, "time": 0.5, "rmse": 0.1}]
+    >>> equal_error_ranking(rows)
+    [(0.2, [('b', 64.0, 0.5), ('a', 4.0, 1.0)])]
+    """
+    if budgets is None:
+        first = rows[0]["method"] if rows else None
+        budgets = [r[metric] for r in rows if r["method"] == first]
+    ranking = []
+    for budget in budgets:
+        best: dict[str, tuple[float, float]] = {}
+        for r in rows:
+            if r[metric] <= budget * (1 + 1e-9) and np.isfinite(r["time"]):
+                if r["time"] < best.get(r["method"], (math.inf, math.inf))[1]:
+                    best[r["method"]] = (float(r["value"]), float(r["time"]))
+        ranked = sorted(((m, v, t) for m, (v, t) in best.items()), key=lambda entry: entry[2])
+        ranking.append((float(budget), ranked))
+    return ranking
+
+
+def setting_label(method: str, value: float) -> str:
+    """The sweep point as people read it: ``16 spp`` for a sampler, ``threshold 64``
+    for an integrator method (its :attr:`Method.parameter`)."""
+    spec = METHODS.get(method)
+    parameter = spec.parameter if spec is not None else "spp"
+    return f"{value:g} spp" if parameter == "spp" else f"{parameter} {value:g}"
+
+
+def _sweeps_spp(method: str) -> bool:
+    spec = METHODS.get(method)
+    return spec is None or spec.parameter == "spp"
+
+
 _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "execute", "total",
                "kernels", "cache_hits", "rmse", "relmse", "flip", "width", "height", "exr")
 
@@ -551,21 +617,40 @@ def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *,
              f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
              "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
-             "| method | spp | seeds | time (s) | compile (s) | RMSE | relMSE | FLIP |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "| method | setting | spp | seeds | time (s) | compile (s) | RMSE | relMSE | FLIP |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r['method']} | {r['spp']:g} | {r['seeds']} | {r['time']:.3f} ± {r['time_std']:.3f} "
+        lines.append(f"| {r['method']} | {setting_label(r['method'], r['value'])} | {r['spp']:.4g} | {r['seeds']} "
+                     f"| {r['time']:.3f} ± {r['time_std']:.3f} "
                      f"| {r['compile']:.3f} | {r['rmse']:.5f} ± {r['rmse_std']:.5f} "
                      f"| {r['relmse']:.3e} | {r['flip']:.4f} |")
-    lines += ["", "## Fitted log-log slopes (least squares over the sweep)", "",
+    lines += ["", "spp: samples per pixel taken (an adaptive method's mean over the pixels).", "",
+              "## Fitted log-log slopes (least squares over the sweep)", "",
               "| method | MSE vs spp | MSE vs time |", "|---|---:|---:|"]
     for method, s in fitted.items():
-        lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {s['mse_vs_time']:.2f} |")
+        if _sweeps_spp(method):
+            lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {s['mse_vs_time']:.2f} |")
+        else:
+            lines.append(f"| {method} | – | – |")
+    if not all(_sweeps_spp(method) for method in fitted):
+        lines += ["", "–: the method sweeps another parameter than spp; a fit over that sweep is not "
+                  "a convergence rate."]
     lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", "",
               "| budget (s) | ranking (MSE) |", "|---:|---|"]
     for budget, ranked in equal_time_ranking(rows):
         text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
         lines.append(f"| {budget:.3f} | {text} |")
+    anchors = [r for r in rows if r["method"] == rows[0]["method"]] if rows else []
+    lines += ["", "## Equal-error ranking (fastest render reaching each RMSE)", "",
+              f"Budgets: the RMSE of each {anchors[0]['method'] if anchors else ''} point; times relative to "
+              "that point's.", "",
+              "| RMSE budget (from) | ranking (time) |", "|---|---|"]
+    for anchor, (budget, ranked) in zip(anchors, equal_error_ranking(rows, [a["rmse"] for a in anchors])):
+        text = ", ".join(f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s, {t / anchor['time']:.2f}x)"
+                         if anchor["time"] > 0 else f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s)"
+                         for i, (m, v, t) in enumerate(ranked))
+        lines.append(f"| {budget:.5f} ({anchor['method']} {setting_label(anchor['method'], anchor['value'])}, "
+                     f"{anchor['time']:.3f} s) | {text} |")
     atomic_write(paths["md"], lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
 
     _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
@@ -584,15 +669,22 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
     fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=110)
     xs_all, ys_all = [], []
     for method in dict.fromkeys(r["method"] for r in rows):
-        mine = sorted((r for r in rows if r["method"] == method), key=lambda r: r[x_name])
+        spp_sweep = _sweeps_spp(method)
+        mine = [r for r in rows if r["method"] == method]  # another parameter: in sweep order
+        if spp_sweep:
+            mine.sort(key=lambda r: r[x_name])
         x = np.array([r[x_name] for r in mine])
         y = np.array([r["mse"] for r in mine])
         err = np.array([2 * r["rmse"] * r["rmse_std"] for r in mine])  # std of MSE, first order
         ok = (x > 0) & (y > 0)
         xs_all += list(x[ok])
         ys_all += list(y[ok])
-        ax.errorbar(x[ok], y[ok], yerr=err[ok], marker="o", capsize=2,
-                    label=f"{method} (slope {fitted[method][slope_name]:.2f})")
+        label = f"{method} (slope {fitted[method][slope_name]:.2f})" if spp_sweep else \
+            f"{method} ({METHODS[method].parameter} labelled)"
+        ax.errorbar(x[ok], y[ok], yerr=err[ok], marker="o", capsize=2, label=label)
+        if not spp_sweep:  # a threshold sweep: say which point is which
+            for xi, yi, r in zip(x[ok], y[ok], [r for r, good in zip(mine, ok) if good]):
+                ax.annotate(f"{r['value']:g}", (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7)
     if xs_all:
         x0, y0 = min(xs_all), max(ys_all)
         x1 = max(xs_all)

@@ -759,7 +759,7 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
     calls = []
     if reference_spp:
         calls.append((scene, REFERENCE_SAMPLER, int(reference_spp), REFERENCE_SEED, params,
-                      str(Path(out_dir) / "reference"), key))
+                      str(Path(out_dir) / "reference"), key, False))  # False: no warm-up render
     calls += [(scene, t.method, t.value, int(t.seed), params, out_dir, key) for t in tasks]
     todo = [c for c in calls
             if not all(p.is_file() for p in task_paths(c[5], Task(c[1], c[2], c[3]), key))]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -10,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pointillist.compare import (METHODS, Method, RenderRecord, Task, configure_scene,
-                                 equal_time_ranking, fit_slope, image_errors, resolve_methods)
+from pointillist.compare import (METHODS, Method, RenderRecord, Task, configure_scene, equal_error_ranking,
+                                 equal_time_ranking, fit_slope, image_errors, resolve_methods, setting_label)
 from pointillist.errors import UsageError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -149,6 +150,53 @@ def test_equal_time_ranking_hand_case():
     assert equal_time_ranking(rows, budgets=[0.5]) == [(0.5, [])]
 
 
+def test_equal_error_ranking_hand_case():
+    rows = [
+        {"method": "a", "value": 4, "time": 1.0, "rmse": 0.5}, {"method": "a", "value": 16, "time": 4.0, "rmse": 0.1},
+        {"method": "b", "value": 128, "time": 2.0, "rmse": 0.2}, {"method": "b", "value": 64, "time": 3.0, "rmse": 0.05},
+        {"method": "c", "value": 1, "time": 0.1, "rmse": math.nan},
+    ]
+    # default budgets: the first method's points (0.5 then 0.1); b's fastest point within each
+    assert equal_error_ranking(rows) == [(0.5, [("a", 4.0, 1.0), ("b", 128.0, 2.0)]),
+                                         (0.1, [("b", 64.0, 3.0), ("a", 16.0, 4.0)])]
+    assert equal_error_ranking(rows, [0.2]) == [(0.2, [("b", 128.0, 2.0), ("a", 16.0, 4.0)])]
+    assert equal_error_ranking(rows, [0.01]) == [(0.01, [])]  # nobody that accurate; NaN never is
+    assert equal_error_ranking([]) == []
+
+
+def test_setting_label():
+    assert setting_label("jitter", 16.0) == "16 spp"
+    assert setting_label("adaptive", 64.0) == "threshold 64"
+    assert setting_label("not-registered", 2.5) == "2.5 spp"
+
+
+def test_render_one_warms_up_once_per_method(mi, tmp_path, monkeypatch):
+    """A method's first render in a process is rendered twice (the first untimed, its compile
+    time added); later renders of that method, and the reference, once."""
+    import pointillist.compare as compare
+    import pointillist.scene as scene_module
+
+    calls = []
+    real = scene_module.timed_render
+
+    def spy(scene, **kwargs):
+        calls.append(kwargs["seed"])
+        image, timing = real(scene, **kwargs)
+        return image, (dataclasses.replace(timing, compile=0.25) if len(calls) == 1 else timing)
+
+    monkeypatch.setattr(scene_module, "timed_render", spy)
+    monkeypatch.setattr(compare, "_WARMED", set())
+    params = {"res": "8"}
+    first = compare.render_one(str(EDGES), "jitter", 2, 0, params, str(tmp_path))
+    assert calls == [0, 0] and first.compile >= 0.25 and first.time <= first.total
+    compare.render_one(str(EDGES), "jitter", 2, 1, params, str(tmp_path))
+    assert calls == [0, 0, 1]
+    compare.render_reference(str(EDGES), params, str(tmp_path), 4)
+    assert len(calls) == 4  # the reference: no warm-up
+    compare.render_one(str(EDGES), "grid", 2, 0, params, str(tmp_path))
+    assert len(calls) == 6  # a new method warms up again
+
+
 # ------------------------------------------------------------------------ render_one
 def test_render_one_writes_and_reuses(mi, tmp_path):
     from imaging.io import read_exr
@@ -201,7 +249,8 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
         assert (out / r["exr"]).is_file()
         assert float(r["rmse"]) > 0 and float(r["flip"]) > 0 and float(r["time"]) >= 0
     text = (out / "results.md").read_text()
-    assert "Equal-time ranking" in text and "MSE vs spp" in text
+    assert "Equal-time ranking" in text and "MSE vs spp" in text and "Equal-error ranking" in text
+    assert "| jitter | 4 spp | 4 |" in text  # the setting column
     # error falls with spp for every sampler (mean over seeds)
     for method in ("grid", "jitter", "random", "poisson"):
         mse = [np.mean([float(r["rmse"]) ** 2 for r in rows if r["method"] == method and r["spp"] == s])
@@ -246,3 +295,12 @@ def test_cli_compare_checks_sample_counts_before_rendering(cli, tmp_path):
     huge = cli("compare", EDGES, "--spp", str(2**32), "--out", out)
     assert huge.returncode == 2 and "1..2^32-1" in huge.stderr
     assert not out.exists()
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import pointillist.compare as compare
+
+    result = doctest.testmod(compare, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 6 and result.failed == 0

@@ -3,7 +3,7 @@
 Renders SCENE with each sampler at each sample count (and seed), measures each
 render's wall time (JIT compilation reported apart) and its RMSE, relative MSE and
 FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
-(table, fitted slopes, equal-time ranking), DIR/error_vs_time.png,
+(table, fitted slopes, equal-time and equal-error rankings), DIR/error_vs_time.png,
 DIR/error_vs_spp.png and the renders (DIR/renders/*.exr). Finished renders are
 kept: running the same command again resumes an interrupted sweep.
 """
@@ -39,8 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
                         help="comma-separated samplers: grid, jitter, random, poisson, and Mitsuba's "
-                             "independent, stratified, multijitter, orthogonal, ldsampler "
-                             f"(default {','.join(DEFAULT_METHODS)})")
+                             "independent, stratified, multijitter, orthogonal, ldsampler; or adaptive "
+                             "(adaptive super-sampling around the scene's integrator, sweeping its threshold "
+                             "instead of --spp) (default "
+                             f"{','.join(DEFAULT_METHODS)})")
     parser.add_argument("--spp", type=spp_list, default=list(DEFAULT_SPP),
                         help=f"samples per pixel to sweep (default {','.join(map(str, DEFAULT_SPP))})")
     parser.add_argument("--seeds", type=positive_int, default=1,
