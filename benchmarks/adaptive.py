@@ -11,7 +11,10 @@ configuration: a first call (JIT compile reported apart; in-process kernel cache
 the ``~/.drjit`` disk cache may be warm), then ``--repeats`` rounds in which every
 configuration renders once with a new seed, in rotating order, so that load from
 other processes hits all of them alike; times are medians over the rounds, each render
-evaluated (``timed_render``: ``dr.eval`` + ``dr.sync_thread``). Errors are RMSE against
+evaluated (``timed_render``: ``dr.eval`` + ``dr.sync_thread``). As in ``pointillist
+compare``, every render gets a freshly loaded scene, freed after it (one scene alive at a
+time), and ``adaptive`` renders the scene as written (its ``independent`` sampler
+drives the nested integrator's random numbers) while ``jitter`` gets its sampler. Errors are RMSE against
 a high-spp ``stratified`` reference (``pointillist.compare``'s definition), averaged
 over the rounds. The adaptive integrator's own split of each render (seconds tracing:
 ray generation, the nested integrator and evaluating that kernel, vs everything else)
@@ -61,7 +64,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     from pointillist.compare import METHODS, REFERENCE_SAMPLER, REFERENCE_SEED, image_errors, load_configured_scene
-    from pointillist.scene import timed_render
+    from pointillist.scene import load_scene, timed_render
 
     params = {"res": str(args.res)} if args.res else {}
     print(f"machine: {platform.machine()}, Python {platform.python_version()}, Mitsuba {mi.__version__}, "
@@ -72,14 +75,14 @@ def main(argv=None) -> int:
         nested_dict = None if nested_name == "direct" else {"type": "path", "max_depth": 8}
         suites[nested_name] = run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS,
                                         REFERENCE_SAMPLER, REFERENCE_SEED, image_errors, load_configured_scene,
-                                        timed_render)
+                                        load_scene, timed_render)
     _plot(suites, args.plot)
     print(f"plot: {args.plot}")
     return 0
 
 
 def run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS, REFERENCE_SAMPLER, REFERENCE_SEED,
-              image_errors, load_configured_scene, timed_render):
+              image_errors, load_configured_scene, load_scene, timed_render):
     reference_scene = load_configured_scene(args.scene, METHODS[REFERENCE_SAMPLER], args.reference_spp, params)
     nested = mi.load_dict(nested_dict) if nested_dict else reference_scene.integrator()
     reference = np.array(mi.render(reference_scene, integrator=nested, seed=REFERENCE_SEED))[..., :3]
@@ -89,33 +92,44 @@ def run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS, REF
     dr.sync_thread()
     dr.flush_malloc_cache()
 
-    # ONE scene for every configuration (jitter's spp and the adaptive integrator are
-    # render arguments): Mitsuba dispatches shape / BSDF / emitter calls over every
-    # instance alive in the process, so each extra loaded scene slows every render
-    # (here 20 idle copies of edges.xml made a jitter-16 render 2x slower, and
-    # adaptive, with more ray batches, up to 5x; the tables before this fix were
-    # measured that way).
+    # A fresh scene per render, freed after it, as `pointillist compare` does: Mitsuba
+    # dispatches shape / BSDF / emitter calls over every instance alive in the process,
+    # so each extra loaded scene slows every render (here 20 idle copies of edges.xml
+    # made a jitter-16 render 2x slower, and adaptive, with more ray batches, up to 5x;
+    # tables before 2026-11 were measured with 24 scenes alive). Loading takes ~1 ms,
+    # outside the timed span. jitter's scene gets the jitter sampler; adaptive renders
+    # the scene as written (its own sampler, as in compare).
     gc.collect()
-    scene = load_configured_scene(args.scene, METHODS["jitter"], 16, params)
     entries = []
     for spp in JITTER_SPP:
-        entries.append({"name": f"jitter {spp} spp", "kind": "jitter", "scene": scene, "spp": float(spp),
+        entries.append({"name": f"jitter {spp} spp", "kind": "jitter", "spp": float(spp),
+                        "load": lambda: load_configured_scene(args.scene, METHODS["jitter"], 16, params),
                         "kwargs": {"spp": spp, "integrator": nested}, "integrator": None})
     for threshold, min_depth, max_depth in ADAPTIVE[nested_name]:
         integrator = mi.load_dict({"type": "adaptive", "threshold": threshold, "max_depth": max_depth,
                                    "min_depth": min_depth, "nested": nested})
         entries.append({"name": f"adaptive t={threshold:g} depth {min_depth}..{max_depth}", "kind": "adaptive",
-                        "scene": scene, "kwargs": {"integrator": integrator}, "integrator": integrator,
+                        "load": lambda: load_scene(args.scene, params),
+                        "kwargs": {"integrator": integrator}, "integrator": integrator,
                         "config": (threshold, min_depth, max_depth)})
+
+    def render(e, seed):
+        scene = e["load"]()
+        try:
+            return timed_render(scene, seed=seed, **e["kwargs"])
+        finally:
+            del scene
+            gc.collect()
+
     for e in entries:
-        image, first = timed_render(e["scene"], seed=0, **e["kwargs"])
+        image, first = render(e, 0)
         e.update(first=first.total, compile=first.compile, times=[], errors=[], traced=[], counts=[], launches=[])
         del image
     rounds = range(1, args.repeats + 1)
     for r in tqdm(rounds, desc=f"adaptive benchmark ({nested_name})", file=sys.stderr):
         order = entries[r % len(entries):] + entries[:r % len(entries)]
         for e in order:
-            image, timing = timed_render(e["scene"], seed=r, **e["kwargs"])
+            image, timing = render(e, r)
             pixels = np.asarray(image)
             e["times"].append(timing.total)
             e["launches"].append(timing.kernels)
