@@ -283,6 +283,10 @@ def test_bad_parameters_raise(mi):
         mi.load_dict({"type": "mip", "window": "40"})
     with pytest.raises(Exception, match="colormap"):
         mi.load_dict({"type": "mip", "colormap": "no-such-map"})
+    with pytest.raises(Exception, match="fast_axis: expected a boolean"):  # "false" is not False
+        mi.load_dict({"type": "mip", "fast_axis": "false"})
+    with pytest.raises(Exception, match="precision: expected one of auto, half, single"):
+        mi.load_dict({"type": "mip", "precision": "double"})
     integrator = mi.load_dict({"type": "mip"})
     with pytest.raises(RuntimeError, match="no volume"):
         integrator.project_rays(mi.Ray3f(mi.Point3f(0, 0, 0), mi.Vector3f(0, 0, 1)))

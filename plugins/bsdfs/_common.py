@@ -1,4 +1,5 @@
-"""Helpers shared by pointillist's Python BSDFs (``lambert``, ``phong``).
+"""Helpers shared by pointillist's Python BSDFs (``lambert``, ``phong``), and the
+property readers every Python plugin uses (``whitted``, ``mip`` and ``adaptive`` too).
 
 Not a plugin (the leading underscore keeps :func:`plugins.register` away).
 Imported after the Mitsuba variant is set.
@@ -12,7 +13,8 @@ import numbers
 import drjit as dr
 import mitsuba as mi
 
-__all__ = ["texture_property", "texture_range", "spectrum_property", "safe_power"]
+__all__ = ["texture_property", "texture_range", "spectrum_property", "string_property", "boolean_property",
+           "number_property", "integer_property", "safe_power"]
 
 
 def _as_triple(value, name: str) -> tuple[float, float, float] | None:
@@ -92,6 +94,52 @@ def spectrum_property(props, name: str, default) -> tuple[float, float, float]:
     if not all(math.isfinite(v) for v in triple):
         raise ValueError(f"{name}: expected finite values, got {list(triple)}")
     return triple
+
+
+def string_property(props, name: str, default: str, choices=None) -> str:
+    """A string property; with ``choices``, one of them."""
+    value = props.get(name, default) if name in props else default
+    if not isinstance(value, str):
+        raise TypeError(f"{name}: expected a string, got {type(value).__name__}")
+    if choices is not None and value not in choices:
+        raise ValueError(f"{name}: expected one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def boolean_property(props, name: str, default: bool) -> bool:
+    """A boolean property (``<boolean>``; no other type is taken for one)."""
+    value = props[name] if name in props else default
+    if not isinstance(value, bool):
+        raise TypeError(f"{name}: expected a boolean, got {type(value).__name__}")
+    return value
+
+
+def number_property(props, name: str, default: float, *, minimum: float | None = None, strict: bool = False,
+                    allow_inf: bool = False) -> float:
+    """A real property as a float: finite (or +-inf with ``allow_inf``), never NaN, and
+    ``>= minimum`` (``> minimum`` with ``strict``)."""
+    value = props[name] if name in props else default
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and not allow_inf):
+        raise ValueError(f"{name}: expected a finite number, got {value}")
+    if minimum is not None and (value < minimum or (strict and value == minimum)):
+        relation = ">" if strict else ">="
+        raise ValueError(f"{name}: expected a number {relation} {minimum:g}, got {value:g}")
+    return value
+
+
+def integer_property(props, name: str, default: int, minimum: int, maximum: int, meaning: str = "") -> int:
+    """An integer property in ``minimum..maximum``; ``meaning`` (e.g. what 0 does) is
+    added to the range error."""
+    value = props[name] if name in props else default
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
+    if not minimum <= value <= maximum:
+        note = f" ({meaning})" if meaning else ""
+        raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}{note}, got {value}")
+    return value
 
 
 def safe_power(x, n):

@@ -15,6 +15,7 @@ from statistics import NormalDist
 import drjit as dr
 import mitsuba as mi
 
+from plugins.bsdfs._common import boolean_property, integer_property, number_property, string_property
 from plugins.integrators._common import develop_film
 
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
@@ -234,64 +235,23 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             raise ValueError("adaptive: the nested integrator cannot be another adaptive integrator")
         self.nested = nested[0]
 
-        self.criterion = self._string(props, "criterion", "range")
-        if self.criterion not in CRITERIA:
-            raise ValueError(f"criterion: expected one of {', '.join(CRITERIA)}, got {self.criterion!r}")
-        self.threshold = self._number(props, "threshold", 20.0, minimum=0.0, allow_inf=True)
-        self.max_depth = self._integer(props, "max_depth", 3, 0, MAX_DEPTH_LIMIT)
-        self.min_depth = self._integer(props, "min_depth", 0, 0, MAX_DEPTH_LIMIT)
+        self.criterion = string_property(props, "criterion", "range", CRITERIA)
+        self.threshold = number_property(props, "threshold", 20.0, minimum=0.0, allow_inf=True)
+        self.max_depth = integer_property(props, "max_depth", 3, 0, MAX_DEPTH_LIMIT)
+        self.min_depth = integer_property(props, "min_depth", 0, 0, MAX_DEPTH_LIMIT)
         if self.min_depth > self.max_depth:
             raise ValueError(f"min_depth: expected at most max_depth = {self.max_depth}, got {self.min_depth}")
-        self.weighting = self._string(props, "weighting", "area")
-        if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"weighting: expected one of {', '.join(WEIGHTINGS)}, got {self.weighting!r}")
-        self.exposure = self._number(props, "exposure", 0.0)
-        self.srgb = self._boolean(props, "srgb", True)
-        self.max_error = self._number(props, "max_error", 0.05, minimum=0.0, strict=True)
-        self.p_value = self._number(props, "p_value", 0.05, minimum=0.0, strict=True)
+        self.weighting = string_property(props, "weighting", "area", WEIGHTINGS)
+        self.exposure = number_property(props, "exposure", 0.0)
+        self.srgb = boolean_property(props, "srgb", True)
+        self.max_error = number_property(props, "max_error", 0.05, minimum=0.0, strict=True)
+        self.p_value = number_property(props, "p_value", 0.05, minimum=0.0, strict=True)
         if not self.p_value < 1.0:
             raise ValueError(f"p_value: expected a number in (0, 1), got {self.p_value}")
-        self.max_sample_factor = self._integer(props, "max_sample_factor", 32, 1, 1 << 16)
+        self.max_sample_factor = integer_property(props, "max_sample_factor", 32, 1, 1 << 16)
         self.quantile = NormalDist().inv_cdf(1.0 - self.p_value / 2.0)
         #: Statistics of the last render (rays per level, seconds tracing / total).
         self.stats: dict = {}
-
-    # -- property parsing ---------------------------------------------------------------
-    @staticmethod
-    def _string(props, name, default):
-        value = props.get(name, default) if name in props else default
-        if not isinstance(value, str):
-            raise TypeError(f"{name}: expected a string, got {type(value).__name__}")
-        return value
-
-    @staticmethod
-    def _boolean(props, name, default):
-        value = props[name] if name in props else default
-        if not isinstance(value, bool):
-            raise TypeError(f"{name}: expected a boolean, got {type(value).__name__}")
-        return value
-
-    @staticmethod
-    def _number(props, name, default, minimum=None, strict=False, allow_inf=False):
-        value = props[name] if name in props else default
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
-        value = float(value)
-        if math.isnan(value) or (math.isinf(value) and not allow_inf):
-            raise ValueError(f"{name}: expected a finite number, got {value}")
-        if minimum is not None and (value < minimum or (strict and value == minimum)):
-            relation = ">" if strict else ">="
-            raise ValueError(f"{name}: expected a number {relation} {minimum:g}, got {value:g}")
-        return value
-
-    @staticmethod
-    def _integer(props, name, default, minimum, maximum):
-        value = props[name] if name in props else default
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
-        if not minimum <= value <= maximum:
-            raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}, got {value}")
-        return value
 
     # -- Mitsuba interface --------------------------------------------------------------
     def aov_names(self):

@@ -8,6 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from plugins.bsdfs._common import boolean_property, number_property, string_property
 from plugins.integrators._common import develop_film
 from pointillist.volumes import Volume, load_volume, volume_texture
 
@@ -199,24 +200,16 @@ class MIPIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        self.mode = str(props.get("mode", "mip"))
-        if self.mode not in MODES:
-            raise ValueError(f"mip: mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
-        self.interpolation = str(props.get("interpolation", "trilinear"))
-        if self.interpolation not in ("trilinear", "nearest"):
-            raise ValueError(f"mip: interpolation: expected 'trilinear' or 'nearest', got {self.interpolation!r}")
-        self.step = float(props.get("step", 0.5))
-        if not (math.isfinite(self.step) and self.step > 0):
-            raise ValueError(f"mip: step: expected a positive number of voxels, got {self.step}")
+        self.mode = string_property(props, "mode", "mip", MODES)
+        self.interpolation = string_property(props, "interpolation", "trilinear", ("trilinear", "nearest"))
+        self.step = number_property(props, "step", 0.5, minimum=0.0, strict=True)  # in voxels
         self.window = parse_window(str(props.get("window", "")))
         self.colormap = str(props.get("colormap", "grey"))
         self.lut = colormap_lut(self.colormap)
-        self.precision = str(props.get("precision", "auto"))
-        if self.precision not in ("auto", "half", "single"):
-            raise ValueError(f"mip: precision: expected auto, half or single, got {self.precision!r}")
+        self.precision = string_property(props, "precision", "auto", ("auto", "half", "single"))
         self._background = float(props["background"]) if "background" in props else None
-        self.fast_axis = bool(props.get("fast_axis", True))
-        self.skip_bricks = bool(props.get("skip_bricks", True))
+        self.fast_axis = boolean_property(props, "fast_axis", True)
+        self.skip_bricks = boolean_property(props, "skip_bricks", True)
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
         self.to_world = _scalar_transform(props.get("to_world", mi.ScalarTransform4f()))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from plugins.bsdfs._common import spectrum_property
+from plugins.bsdfs._common import boolean_property, integer_property, spectrum_property
 
 __all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME", "PLUGIN_CLASS"]
 
@@ -160,23 +160,15 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        max_depth = props.get("max_depth", 5)
-        if isinstance(max_depth, bool) or not isinstance(max_depth, int):
-            raise TypeError(f"max_depth: expected an integer >= 0, got {max_depth!r}")
-        if not 0 <= max_depth <= MAX_DEPTH_LIMIT:
-            raise ValueError(f"max_depth: expected an integer in 0..{MAX_DEPTH_LIMIT} (0 shows only "
-                             f"emitters seen directly), got {max_depth}")
-        self.max_depth = int(max_depth)
+        self.max_depth = integer_property(props, "max_depth", 5, 0, MAX_DEPTH_LIMIT,
+                                          "0 shows only emitters seen directly")
         ambient = spectrum_property(props, "ambient", 0.0)
         if min(ambient) < 0:
             raise ValueError(f"ambient: expected non-negative radiance, got {list(ambient)}")
         self.ambient_value = ambient
         self.m_ambient = dr.opaque(mi.Color3f, ambient)
         self.m_max_depth = dr.opaque(mi.UInt32, self.max_depth)
-        specialize = props.get("specialize", True)
-        if not isinstance(specialize, bool):
-            raise TypeError(f"specialize: expected a boolean, got {specialize!r}")
-        self.specialize = specialize
+        self.specialize = boolean_property(props, "specialize", True)
         #: What the last render found in its scene (a :class:`SceneFeatures`).
         self.features: SceneFeatures | None = None
 
