@@ -56,7 +56,7 @@ def first_call(size: int, home: str) -> dict[str, float]:
 import json, time, numpy as np, drjit as dr, sys
 sys.path.insert(0, {str(ROOT)!r})
 from benchmarks.imaging_dither import test_image
-import imaging.dither as d
+import pointillist.imaging.dither as d
 from drjit.llvm import TensorXf
 image = TensorXf(test_image({size}).astype(np.float32)); dr.eval(image)
 result = {{}}
@@ -146,7 +146,7 @@ def main() -> int:
     from PIL import Image
     from tqdm import tqdm
 
-    import imaging.dither as d
+    import pointillist.imaging.dither as d
 
     size, repeats = args.size, args.repeats
     odd = size - 1  # a width that is not a power of two: the template index needs a division

@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import imaging  # noqa: E402,F401  (picks libLLVM first)
+import pointillist.imaging  # noqa: E402,F401  (picks libLLVM first)
 import cv2  # noqa: E402
 import drjit as dr  # noqa: E402
 import scipy  # noqa: E402
@@ -44,8 +44,8 @@ import skimage.filters  # noqa: E402
 import skimage.transform  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from imaging import filters as F  # noqa: E402
-from imaging.resample import resize  # noqa: E402
+from pointillist.imaging import filters as F  # noqa: E402
+from pointillist.imaging.resample import resize  # noqa: E402
 
 
 def cases(n: int):

@@ -35,11 +35,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import imaging  # noqa: E402,F401  (picks libLLVM)
+import pointillist.imaging  # noqa: E402,F401  (picks libLLVM)
 import drjit as dr  # noqa: E402
 
-from imaging import colour as ic  # noqa: E402
-from imaging import tone  # noqa: E402
+from pointillist.imaging import colour as ic  # noqa: E402
+from pointillist.imaging import tone  # noqa: E402
 
 
 def images(size: int):

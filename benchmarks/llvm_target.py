@@ -60,9 +60,9 @@ def child(mode: str, repeats: int) -> dict:
     import numpy as np
 
     target = _set_target(mode)
-    from imaging import colour, tone
-    from imaging import filters as F
-    from imaging.resample import resize
+    from pointillist.imaging import colour, tone
+    from pointillist.imaging import filters as F
+    from pointillist.imaging.resample import resize
 
     rng = np.random.default_rng(0)
     g8 = (rng.random((2048, 2048)) * 255).astype(np.uint8)

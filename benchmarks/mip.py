@@ -56,7 +56,7 @@ def part_a(n: int, repeats: int) -> dict:
 
     import pointillist
     from pointillist.commands.mip import view_axes
-    from pointillist.volumes import Volume, shepp_logan_phantom
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
     pointillist.setup()
     vol = shepp_logan_phantom(n)  # int16
@@ -124,7 +124,7 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     """Build the CT and render it; print a JSON line with timings and peak RSS."""
     t = time.perf_counter()
     import pointillist
-    from pointillist.volumes import Volume, shepp_logan_phantom
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
     pointillist.setup()
     vol = shepp_logan_phantom(shape)

@@ -80,7 +80,7 @@ def main() -> None:
     from pointillist.compare import METHODS, fit_slope, load_configured_scene
 
     pointillist.setup()
-    from plugins.samplers.poisson import poisson_disk_points
+    from pointillist.plugins.samplers.poisson import poisson_disk_points
     lines = [f"Machine: {platform.machine()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, libLLVM {dr.detail.llvm_version()}.",
              "Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/samplers.py`", ""]
@@ -115,7 +115,7 @@ def main() -> None:
     lines += ["", "**Poisson set generation** (Bridson on the torus, NumPy, not the shipped sets) against one 64 spp "
               "render of edges.xml", "", "| points | generation (ms) | r / r_hex | share of 64 spp render |",
               "|---:|---:|---:|---:|"]
-    from plugins.samplers.poisson import generate_poisson_disk_points, hexagonal_radius, toroidal_min_distance
+    from pointillist.plugins.samplers.poisson import generate_poisson_disk_points, hexagonal_radius, toroidal_min_distance
 
     for n in (16, 64, 256, 1024):
         gen = []

@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
-from imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -186,7 +186,7 @@ def rgb_to_hsv(image: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import rgb_to_hsv
+    >>> from pointillist.imaging.colour import rgb_to_hsv
     >>> np.asarray(rgb_to_hsv(np.array([[[1.0, 0.5, 0.0]]]))).round(3).tolist()
     [[[30.0, 1.0, 1.0]]]
     """
@@ -213,7 +213,7 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import hsv_to_rgb
+    >>> from pointillist.imaging.colour import hsv_to_rgb
     >>> np.asarray(hsv_to_rgb(np.array([[[240.0, 1.0, 0.5]]]))).tolist()
     [[[0.0, 0.0, 0.5]]]
     """
@@ -250,7 +250,7 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import adjust_hsv
+    >>> from pointillist.imaging.colour import adjust_hsv
     >>> np.asarray(adjust_hsv(np.array([[[1.0, 0.0, 0.0]]]), hue=120)).tolist()
     [[[0.0, 1.0, 0.0]]]
     """
@@ -293,7 +293,7 @@ def luminance(image: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import luminance
+    >>> from pointillist.imaging.colour import luminance
     >>> np.asarray(luminance(np.ones((1, 2, 3)))).round(6).tolist()
     [[1.0, 1.0]]
     """
@@ -345,7 +345,7 @@ def srgb_encode(image: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import srgb_encode
+    >>> from pointillist.imaging.colour import srgb_encode
     >>> np.asarray(srgb_encode(np.array([[0.0, 0.18, 1.0]])), dtype=float).round(4).tolist()
     [[0.0, 0.4614, 1.0]]
     """
@@ -374,7 +374,7 @@ def srgb_decode(image: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.colour import srgb_decode
+    >>> from pointillist.imaging.colour import srgb_decode
     >>> np.asarray(srgb_decode(np.array([[0.0, 0.5, 1.0]])), dtype=float).round(4).tolist()
     [[0.0, 0.214, 1.0]]
     """

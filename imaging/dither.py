@@ -49,7 +49,7 @@ Function                    Domain                          Range
 Examples
 --------
 >>> import numpy as np
->>> from imaging.dither import floyd_steinberg
+>>> from pointillist.imaging.dither import floyd_steinberg
 >>> np.asarray(floyd_steinberg(np.full((2, 4), 64.0))).tolist()
 [[0.0, 0.0, 0.0, 0.0], [0.0, 255.0, 0.0, 255.0]]
 """
@@ -67,8 +67,8 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, Int32, UInt8, UInt32
 
-from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
-from imaging.filters import threshold
+from pointillist.imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
+from pointillist.imaging.filters import threshold
 
 __all__ = [
     "TEMPLATE_4",
@@ -197,7 +197,7 @@ def _clipped(values: Float) -> Float:
 
 def _srgb_decode_255(values: Float) -> Float:
     """Display intensities 0..255 (sRGB-encoded) -> linear light on 0..255."""
-    from imaging.colour import srgb_decode
+    from pointillist.imaging.colour import srgb_decode
 
     return srgb_decode(TensorXf(values / 255.0, (1, dr.width(values)))).array * 255.0
 
@@ -213,7 +213,7 @@ def _quantiser(levels: int, level: float, linear: bool) -> tuple[np.ndarray, np.
     k = np.arange(levels, dtype=np.float64)
     display = k * 255.0 / (levels - 1)
     if linear:
-        from imaging.colour import srgb_decode
+        from pointillist.imaging.colour import srgb_decode
 
         work = np.asarray(srgb_decode(display[None, :] / 255.0), dtype=np.float64)[0] * 255.0
         work[0], work[-1] = 0.0, 255.0
@@ -531,7 +531,7 @@ def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import diffuse
+    >>> from pointillist.imaging.dither import diffuse
     >>> np.asarray(diffuse(np.full((1, 4), 100.0), "sierra_lite")).tolist()
     [[0.0, 255.0, 0.0, 0.0]]
     """
@@ -551,7 +551,7 @@ def floyd_steinberg(image: Any, level: float = 128, serpentine: bool = False, *,
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import floyd_steinberg
+    >>> from pointillist.imaging.dither import floyd_steinberg
     >>> np.asarray(floyd_steinberg(np.array([[100.0, 100.0]]))).tolist()
     [[0.0, 255.0]]
     """
@@ -587,7 +587,7 @@ def error_diffusion(image: Any, level: float = 128, *, levels: int = 2, linear: 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import error_diffusion
+    >>> from pointillist.imaging.dither import error_diffusion
     >>> np.asarray(error_diffusion(np.array([[100.0, 100.0], [100.0, 100.0]]))).tolist()
     [[0.0, 255.0], [255.0, 0.0]]
     """
@@ -607,7 +607,7 @@ def bayer(n: int) -> np.ndarray:
 
     Examples
     --------
-    >>> from imaging.dither import bayer
+    >>> from pointillist.imaging.dither import bayer
     >>> bayer(2).tolist()
     [[1, 3], [4, 2]]
     """
@@ -628,7 +628,7 @@ def clustered_dot(n: int) -> np.ndarray:
 
     Examples
     --------
-    >>> from imaging.dither import clustered_dot
+    >>> from pointillist.imaging.dither import clustered_dot
     >>> clustered_dot(2).tolist()
     [[3, 4], [2, 1]]
     """
@@ -775,7 +775,7 @@ def intensity_thresholds(template: Any) -> np.ndarray:
 
     Examples
     --------
-    >>> from imaging.dither import TEMPLATE_4, intensity_thresholds
+    >>> from pointillist.imaging.dither import TEMPLATE_4, intensity_thresholds
     >>> intensity_thresholds([[1, 3], [4, 2]]).tolist()  # 255 T / 5
     [[51.0, 153.0], [204.0, 102.0]]
     >>> bool(intensity_thresholds(TEMPLATE_4)[0, 0] == 15.0)  # 255 / 17
@@ -859,7 +859,7 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import ordered
+    >>> from pointillist.imaging.dither import ordered
     >>> np.asarray(ordered(np.full((4, 4), 128.0))).astype(int).tolist()[0]
     [255, 0, 255, 0]
     """
@@ -895,7 +895,7 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import pattern
+    >>> from pointillist.imaging.dither import pattern
     >>> np.asarray(pattern(np.array([[0.0, 255.0], [0.0, 255.0]]), [[1, 3], [4, 2]])).astype(int).tolist()
     [[255, 0], [0, 255]]
     """
@@ -955,7 +955,7 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import halftone
+    >>> from pointillist.imaging.dither import halftone
     >>> np.asarray(halftone(np.array([[128.0]]), 2)).astype(int).tolist()
     [[0, 0], [255, 255]]
     """
@@ -995,7 +995,7 @@ def void_and_cluster(n: int = 64, *, sigma: float = 1.5, seed: int = 0, density:
 
     Examples
     --------
-    >>> from imaging.dither import void_and_cluster
+    >>> from pointillist.imaging.dither import void_and_cluster
     >>> sorted(void_and_cluster(4, seed=1).ravel().tolist()) == list(range(1, 17))
     True
     """
@@ -1075,7 +1075,7 @@ def blue_noise(image: Any, *, levels: int = 2, linear: bool = False, mask: Any =
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.dither import blue_noise
+    >>> from pointillist.imaging.dither import blue_noise
     >>> int((np.asarray(blue_noise(np.full((64, 64), 64.0))) == 255).sum())  # p = floor(64 * 4097 / 255)
     1028
     """
@@ -1105,7 +1105,7 @@ def dither_error(original: Any, result: Any) -> DitherError:
 
     Examples
     --------
-    >>> from imaging.dither import dither_error
+    >>> from pointillist.imaging.dither import dither_error
     >>> dither_error([[100.0, 100.0]], [[0.0, 255.0]])
     DitherError(total=55.0, average=27.5)
     """

@@ -56,7 +56,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, UInt32
 
-from imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
@@ -465,7 +465,7 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import correlate, GAUSSIAN_3
+    >>> from pointillist.imaging.filters import correlate, GAUSSIAN_3
     >>> img = np.zeros((5, 5)); img[2, 2] = 1.0
     >>> np.asarray(correlate(img, GAUSSIAN_3))[1:4, 1:4].tolist()
     [[1.0, 3.0, 1.0], [3.0, 9.0, 3.0], [1.0, 3.0, 1.0]]
@@ -523,7 +523,7 @@ def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import normalize
+    >>> from pointillist.imaging.filters import normalize
     >>> np.asarray(normalize(np.array([[-2.0, 1.0], [3.0, 5.0]]))).tolist()
     [[63.75, 0.0], [127.5, 255.0]]
     """
@@ -580,7 +580,7 @@ def sobel(image: Any, *, border: str = "zero", components: bool = False):
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import sobel
+    >>> from pointillist.imaging.filters import sobel
     >>> step = np.array([[0, 0, 10, 10]] * 3, dtype=float)
     >>> np.asarray(sobel(step))[1].tolist()
     [0.0, 40.0, 40.0, 0.0]
@@ -597,7 +597,7 @@ def prewitt(image: Any, *, border: str = "zero", components: bool = False):
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import prewitt
+    >>> from pointillist.imaging.filters import prewitt
     >>> step = np.array([[0, 0, 10, 10]] * 3, dtype=float)
     >>> np.asarray(prewitt(step))[1].tolist()
     [0.0, 30.0, 30.0, 0.0]
@@ -614,7 +614,7 @@ def laplacian(image: Any, *, border: str = "zero") -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import laplacian
+    >>> from pointillist.imaging.filters import laplacian
     >>> np.asarray(laplacian(np.array([[0, 0, 0], [0, 1, 0], [0, 0, 0]])))[1, 1].item()
     -4.0
     """
@@ -643,7 +643,7 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import zero_crossings
+    >>> from pointillist.imaging.filters import zero_crossings
     >>> np.asarray(zero_crossings(np.array([[1.0, -1.0, 0.0, 2.0]]))).tolist()
     [[255.0, 0.0, 0.0, 0.0]]
     """
@@ -690,7 +690,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import threshold
+    >>> from pointillist.imaging.filters import threshold
     >>> np.asarray(threshold(np.array([[0, 127], [128, 255]]))).tolist()
     [[0.0, 0.0], [255.0, 255.0]]
     """
@@ -804,7 +804,7 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.filters import median
+    >>> from pointillist.imaging.filters import median
     >>> img = np.full((3, 3), 10.0); img[1, 1] = 255.0     # salt noise
     >>> np.asarray(median(img))[1, 1].item()
     10.0

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from imaging._array import as_tensor, to_numpy
+from pointillist.imaging._array import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
            "to_8bit"]
@@ -129,7 +129,7 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     Examples
     --------
     >>> import numpy as np, tempfile, os
-    >>> from imaging.io import read_exr, write_exr
+    >>> from pointillist.imaging.io import read_exr, write_exr
     >>> path = os.path.join(tempfile.mkdtemp(), "x.exr")
     >>> write_exr(path, np.ones((2, 3, 3), np.float32), metadata={"spp": 16})
     >>> image, meta, layers = read_exr(path)

@@ -39,7 +39,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32, UInt64
 
-from imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["METHODS", "KEYS_A", "keys_kernel", "resize", "sample"]
 
@@ -66,7 +66,7 @@ def keys_kernel(t: Any, a: float = KEYS_A) -> np.ndarray:
 
     Examples
     --------
-    >>> from imaging.resample import keys_kernel
+    >>> from pointillist.imaging.resample import keys_kernel
     >>> keys_kernel([0.0, 0.5, 1.0, 1.5, 2.0]).tolist()
     [1.0, 0.5625, 0.0, -0.0625, 0.0]
     """
@@ -176,7 +176,7 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.resample import resize
+    >>> from pointillist.imaging.resample import resize
     >>> np.asarray(resize(np.array([[0.0, 4.0]]), (4, 1))).tolist()
     [[0.0, 1.0, 3.0, 4.0]]
     """
@@ -271,7 +271,7 @@ def sample(image: Any, x: Any, y: Any, method: str = "bilinear", *, a: float = K
     way across and half way down.
 
     >>> import numpy as np
-    >>> from imaging.resample import sample
+    >>> from pointillist.imaging.resample import sample
     >>> img = np.array([[10.0, 20.0], [30.0, 40.0]])
     >>> float(np.asarray(sample(img, 0.25, 0.5)))     # 10 + 10*0.25 = 12.5; 32.5 below; mean
     22.5

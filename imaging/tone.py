@@ -40,8 +40,8 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
-from imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_encode_values, _hsv_from_rgb, _rgb_from_hsv
+from pointillist.imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
+from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_encode_values, _hsv_from_rgb, _rgb_from_hsv
 
 __all__ = [
     "NonFiniteWarning",
@@ -222,7 +222,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import gamma
+    >>> from pointillist.imaging.tone import gamma
     >>> np.asarray(gamma(np.array([[0.0, 63.75, 255.0]]), 0.5), dtype=float).round(3).tolist()
     [[0.0, 15.938, 255.0]]
     """
@@ -281,7 +281,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import contrast_stretch
+    >>> from pointillist.imaging.tone import contrast_stretch
     >>> np.asarray(contrast_stretch(np.array([[0, 50, 100, 150, 255]]), 50, 25, 150, 230)).tolist()
     [[0.0, 25.0, 127.5, 230.0, 255.0]]
     """
@@ -343,7 +343,7 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import quantize
+    >>> from pointillist.imaging.tone import quantize
     >>> np.asarray(quantize(np.array([[0, 63, 64, 200, 255]]), 4)).tolist()
     [[0.0, 0.0, 85.0, 255.0, 255.0]]
     """
@@ -405,7 +405,7 @@ def lut(image: Any, table: Any) -> TensorXf:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import lut
+    >>> from pointillist.imaging.tone import lut
     >>> np.asarray(lut(np.array([[0, 1, 255]], np.uint8), 255 - np.arange(256))).tolist()
     [[255.0, 254.0, 0.0]]
     """
@@ -494,7 +494,7 @@ def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import histogram
+    >>> from pointillist.imaging.tone import histogram
     >>> histogram(np.array([[0, 0, 255]], np.uint8))[[0, 1, 255]].tolist()
     [2, 0, 1]
     """
@@ -581,7 +581,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import equalize_histogram
+    >>> from pointillist.imaging.tone import equalize_histogram
     >>> np.asarray(equalize_histogram(np.array([[0, 0, 0, 255]], np.uint8))).tolist()
     [[191.0, 191.0, 191.0, 255.0]]
     """
@@ -694,7 +694,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import tonemap
+    >>> from pointillist.imaging.tone import tonemap
     >>> np.asarray(tonemap(np.array([[0.0, 1.0, 3.0]]), "reinhard", white=np.inf), dtype=float).round(2).tolist()
     [[0.0, 187.52, 224.61]]
     """
@@ -782,7 +782,7 @@ def dynamic_range(image: Any) -> float:
     Examples
     --------
     >>> import numpy as np
-    >>> from imaging.tone import dynamic_range
+    >>> from pointillist.imaging.tone import dynamic_range
     >>> dynamic_range(np.array([[10, 200], [30, 40]]))
     190.0
     """

@@ -17,7 +17,7 @@ Usage::
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
-    import plugins
+    from pointillist import plugins
     plugins.register()
     scene = mi.load_file("scenes/whitted.xml")
 """
@@ -48,9 +48,9 @@ _registered: dict[str, dict[str, str]] = {}
 
 
 def _plugin_modules(kind: str) -> list[str]:
-    package = importlib.import_module(f"plugins.{kind}")
+    package = importlib.import_module(f"{__name__}.{kind}")
     return sorted(
-        f"plugins.{kind}.{info.name}"
+        f"{__name__}.{kind}.{info.name}"
         for info in pkgutil.iter_modules(package.__path__)
         if not info.name.startswith("_")
     )
@@ -72,7 +72,7 @@ def register() -> dict[str, str]:
     variant = mi.variant()
     if not variant:
         raise RuntimeError(
-            "plugins.register(): no Mitsuba variant is set; call "
+            "pointillist.plugins.register(): no Mitsuba variant is set; call "
             f"mitsuba.set_variant({DEFAULT_VARIANT!r}) first"
         )
     if variant in _registered:

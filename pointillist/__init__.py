@@ -30,7 +30,7 @@ def setup(variant: str = "llvm_ad_rgb"):
         raise ValueError(f"variant: unknown Mitsuba variant {variant!r}; available: {', '.join(mi.variants())}")
     if mi.variant() != variant:
         mi.set_variant(variant)
-    import plugins
+    from pointillist import plugins
 
     plugins.register()
     return mi

@@ -322,7 +322,7 @@ def _load_record(path: Path, key: str, exr: Path) -> RenderRecord | None:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    from imaging.io import atomic_write
+    from pointillist.imaging.io import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
@@ -477,7 +477,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``."""
     from tqdm import tqdm
 
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
@@ -595,7 +595,7 @@ _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "ex
 def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *, scene: str,
                  reference: str, title: str | None = None) -> dict[str, Path]:
     """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``."""
-    from imaging.io import atomic_write
+    from pointillist.imaging.io import atomic_write
 
     out = Path(out_dir)
     paths = {"csv": out / "results.csv", "md": out / "results.md",
@@ -659,7 +659,7 @@ def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *,
 
 
 def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
-    from imaging.io import atomic_write
+    from pointillist.imaging.io import atomic_write
 
     import matplotlib
 

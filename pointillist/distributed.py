@@ -529,7 +529,7 @@ class ResultCache:
 
     def put(self, key: str, result) -> None:
         """Store ``result`` under ``key`` (atomically)."""
-        from imaging.io import atomic_write
+        from pointillist.imaging.io import atomic_write
 
         def write(tmp: str) -> None:
             with open(tmp, "wb") as handle:
@@ -787,7 +787,7 @@ def mip_frame_task(spec: dict) -> dict:
     """
     _setup_process()
     from pointillist.commands.mip import project_volume
-    from pointillist.volumes import load_volume
+    from pointillist.imaging.volumes import load_volume
 
     path = str(Path(spec["volume"]).resolve())
     try:

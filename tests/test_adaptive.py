@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imaging.io import read_exr, to_8bit
+from pointillist.imaging.io import read_exr, to_8bit
 
 ROOT = Path(__file__).resolve().parent.parent
 EDGE_X = 0.1234  # world x of the vertical edge: film x = (EDGE_X + 1) / 2 * W
@@ -179,7 +179,7 @@ def test_threshold_is_on_the_display_scale_after_exposure(mi):
 def test_display_mapping_matches_the_png_writer(mi):
     import drjit as dr
 
-    from plugins.integrators.adaptive import srgb_display
+    from pointillist.plugins.integrators.adaptive import srgb_display
 
     values = np.array([0.0, 1e-4, 0.0031308, 0.01, 0.2, 0.5, 0.999, 1.0, 3.0, -1.0], dtype=np.float32)
     ours = np.asarray(srgb_display(mi.Float(values)))
@@ -207,7 +207,7 @@ def test_determinism_for_a_fixed_seed(mi):
 
 @pytest.mark.parametrize("nested", ["path", "direct", "whitted"])
 def test_works_with_nested_integrators(mi, nested):
-    import plugins
+    from pointillist import plugins
 
     if nested not in plugins.registered() and nested == "whitted":
         pytest.skip("whitted integrator not present")
@@ -347,7 +347,7 @@ def test_variance_criterion_black_pixels_stop(mi):
     (dict(srgb=1), TypeError, "srgb: expected a boolean"),
 ])
 def test_bad_parameters(mi, options, error, message):
-    from plugins.integrators.adaptive import AdaptiveIntegrator
+    from pointillist.plugins.integrators.adaptive import AdaptiveIntegrator
 
     props = mi.Properties("adaptive")
     for name, value in options.items():
@@ -450,7 +450,7 @@ def test_no_kernel_recompiles_between_thresholds_seeds_and_sizes(mi):
 def test_divmod_without_division_is_exact(mi):
     import drjit as dr
 
-    from plugins.integrators.adaptive import _divmod
+    from pointillist.plugins.integrators.adaptive import _divmod
 
     rng = np.random.default_rng(5)
     x = np.concatenate([rng.integers(0, 2 ** 32, 20000, dtype=np.uint64), [0, 2 ** 32 - 1, 2 ** 31]]).astype(np.uint32)

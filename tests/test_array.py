@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from drjit.llvm import TensorXf
 
-from imaging import as_tensor, colour, dither, filters, resample, tone
+from pointillist.imaging import as_tensor, colour, dither, filters, resample, tone
 
 RNG = np.random.default_rng(0)
 

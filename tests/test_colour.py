@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from imaging.colour import (REC709_LUMINANCE_WEIGHTS, adjust_hsv, hsv_to_rgb, luminance, rgb_to_hsv,
+from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, adjust_hsv, hsv_to_rgb, luminance, rgb_to_hsv,
                             srgb_decode, srgb_encode)
 
 

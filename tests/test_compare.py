@@ -199,7 +199,7 @@ def test_render_one_warms_up_once_per_method(mi, tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------ render_one
 def test_render_one_writes_and_reuses(mi, tmp_path):
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
     from pointillist.compare import render_one, task_paths
 
     params = {"res": "12"}
@@ -261,7 +261,7 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
 
 
 def test_cli_compare_reference_file_and_bad_input(cli, tmp_path):
-    from imaging.io import write_exr
+    from pointillist.imaging.io import write_exr
 
     ref = tmp_path / "ref.exr"
     write_exr(ref, np.full((8, 8, 3), 0.1, np.float32))

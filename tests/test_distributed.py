@@ -353,7 +353,7 @@ def test_killed_worker_loses_no_results(mi, client, tmp_path):
 
 # ----------------------------------------------------------------------------- command line
 def test_render_cli_tiles_workers_and_cache(cli, tmp_path, mi):
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     serial, remote = tmp_path / "serial.exr", tmp_path / "remote.exr"
     common = [DEFAULT, "--spp", "4", "--seed", "2", "-D", "res=20", "--tiles", "2x3"]
@@ -390,7 +390,7 @@ def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
     """`compare --workers 2` renders each (sampler, spp, seed) as a task: same renders and errors as serial."""
     import csv
 
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     common = ["compare", DEFAULT, "-D", "res=12", "--spp", "1,4", "--samplers", "independent,stratified",
               "--seeds", "2", "--reference-spp", "32", "--no-progress"]
@@ -419,7 +419,7 @@ def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
 
 def test_mip_turntable_frames_on_workers_equal_serial(cli, tmp_path):
     """`mip --turntable N --workers 2`: each frame a task; the EXR frames equal the serial ones."""
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     z, y, x = np.mgrid[0:10, 0:9, 0:8]
     volume = np.exp(-((x - 3.0) ** 2 + (y - 5.0) ** 2 + (z - 4.0) ** 2) / 6.0).astype(np.float32)

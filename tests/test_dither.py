@@ -15,9 +15,9 @@ import zlib
 import numpy as np
 import pytest
 
-import imaging.dither as dither
-import imaging.filters
-from imaging.dither import (KERNELS, TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, diffuse,
+import pointillist.imaging.dither as dither
+import pointillist.imaging.filters
+from pointillist.imaging.dither import (KERNELS, TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, diffuse,
                             dither_error, error_diffusion, floyd_steinberg, halftone, ordered, pattern)
 
 
@@ -165,7 +165,7 @@ def test_levels_256_keeps_integer_images():
 
 
 def test_linear_light_matches_reference_on_decoded_input():
-    from imaging.colour import srgb_decode
+    from pointillist.imaging.colour import srgb_decode
 
     rng = np.random.default_rng(5)
     image = random_image(rng, (17, 23))
@@ -180,7 +180,7 @@ def test_linear_light_matches_reference_on_decoded_input():
 
 
 def test_linear_light_preserves_mean_linear_light():
-    from imaging.colour import srgb_decode
+    from pointillist.imaging.colour import srgb_decode
 
     image = np.full((64, 64), 128.0, dtype=np.float32)  # 21.6 % linear light
     display = np.asarray(floyd_steinberg(image)).mean() / 255
@@ -404,7 +404,7 @@ def test_huge_image_memory_stays_linear(tmp_path):
     # 4096 x 4096 float32 input is 64 MiB; the output as much; the error buffer a few rows.
     code = (
         "import resource, numpy as np, drjit as dr\n"
-        "import imaging.dither as d\n"
+        "import pointillist.imaging.dither as d\n"
         "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
         "image = np.full((4096, 4096), 100.0, np.float32)\n"
         "out = d.floyd_steinberg(image); dr.eval(out); dr.sync_thread()\n"

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from drjit.llvm import UInt32
 
-import imaging.dither as dither
-from imaging._array import as_tensor
-from imaging.colour import srgb_decode
-from imaging.dither import TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, intensity_thresholds, ordered
+import pointillist.imaging.dither as dither
+from pointillist.imaging._array import as_tensor
+from pointillist.imaging.colour import srgb_decode
+from pointillist.imaging.dither import TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, intensity_thresholds, ordered
 
 TEMPLATES = {"template_4": TEMPLATE_4, "bayer_8": bayer(8), "blue_noise_64": blue_noise_mask(),
              "clustered_3": clustered_dot(3), "clustered_5": clustered_dot(5), "one": np.array([[1]])}
@@ -195,7 +195,7 @@ def test_one_kernel_per_call_and_no_recompilation_across_sizes():
 
 @pytest.mark.parametrize("shape", [(1, 1), (7, 1), (1, 9), (23, 37), (11, 17, 3)])
 def test_diffusion_uint8_input_equals_float_input(shape):
-    from imaging.dither import KERNELS, diffuse, error_diffusion, floyd_steinberg
+    from pointillist.imaging.dither import KERNELS, diffuse, error_diffusion, floyd_steinberg
 
     image = np.random.default_rng(len(shape) * 100 + shape[0]).integers(0, 256, shape).astype(np.uint8)
     as_float = image.astype(np.float32)
@@ -211,7 +211,7 @@ def test_diffusion_uint8_input_equals_float_input(shape):
 
 
 def test_diffusion_is_one_kernel_launch():
-    from imaging.dither import floyd_steinberg
+    from pointillist.imaging.dither import floyd_steinberg
 
     image = np.random.default_rng(4).uniform(-10, 300, (20, 30)).astype(np.float32)
     tensor = as_tensor(image)
@@ -241,7 +241,7 @@ def halftone_reference(image, template):
 
 @pytest.mark.parametrize("n,shape", [(1, (3, 4)), (2, (5, 3)), (3, (4, 7, 3)), (4, (2, 2)), (5, (3, 1, 2))])
 def test_halftone_follows_the_exact_rule(n, shape):
-    from imaging.dither import halftone
+    from pointillist.imaging.dither import halftone
 
     rng = np.random.default_rng(n)
     image = rng.uniform(-30, 290, shape).astype(np.float32)
@@ -253,7 +253,7 @@ def test_halftone_follows_the_exact_rule(n, shape):
 
 
 def test_halftone_output_beyond_2_to_24_values():
-    from imaging.dither import halftone
+    from pointillist.imaging.dither import halftone
 
     # 690 x 690 pixels, n = 6: 4140^2 = 17.1 M output values (> 2^24: the float64 index path).
     image = np.random.default_rng(6).integers(0, 256, (690, 690)).astype(np.uint8)
@@ -282,7 +282,7 @@ def block_means(image, n):
 
 @pytest.mark.parametrize("n,shape", [(1, (3, 5)), (2, (5, 7)), (4, (9, 6, 3)), (3, (1, 8)), (8, (4, 4))])
 def test_pattern_uses_block_means_and_the_exact_rule(n, shape):
-    from imaging.dither import pattern
+    from pointillist.imaging.dither import pattern
 
     rng = np.random.default_rng(n * 7)
     image = rng.uniform(-20, 280, shape).astype(np.float32)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.ndimage as ndi
 
-import imaging  # noqa: F401  (libLLVM first)
-from imaging import filters as F
+import pointillist.imaging  # noqa: F401  (libLLVM first)
+from pointillist.imaging import filters as F
 
 RNG = np.random.default_rng(6)
 SHAPES = [(1, 1), (2, 2), (5, 5), (7, 10), (6, 4, 3)]
@@ -288,7 +288,7 @@ def test_post_steps_registered_and_run(tmp_path, cli):
         current = spec.function(current, **kwargs)
     assert out(current).shape == (2, 3)
     source = tmp_path / "in.png"
-    from imaging.io import write_png
+    from pointillist.imaging.io import write_png
     write_png(source, np.tile(np.linspace(0, 255, 16, dtype=np.float32), (12, 1)), srgb=False, max_value=255.0)
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 import colour
-from imaging.io import read_exr, read_image, to_8bit, write_exr, write_png
+from pointillist.imaging.io import read_exr, read_image, to_8bit, write_exr, write_png
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (3, 5), (4, 2, 1), (3, 4, 3), (2, 3, 4)])

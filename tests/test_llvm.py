@@ -58,7 +58,7 @@ def test_chosen_library_is_usable_and_exported():
 
 
 def test_no_library_gives_clear_error_not_abort(tmp_path):
-    proc = _run("import imaging", _env(tmp_path, str(tmp_path)))
+    proc = _run("import pointillist.imaging", _env(tmp_path, str(tmp_path)))
     assert proc.returncode == 1, proc.stderr
     assert "LLVMNotFoundError" in proc.stderr
     assert "no libLLVM shared library found" in proc.stderr and "apt-get install libllvm19" in proc.stderr
@@ -68,7 +68,7 @@ def test_broken_library_fails_the_probe(tmp_path):
     folder = tmp_path / "lib"
     folder.mkdir()
     (folder / "libLLVM-19.so").write_bytes(b"not a shared library")
-    proc = _run("import plugins", _env(tmp_path, str(folder)))
+    proc = _run("import pointillist.plugins", _env(tmp_path, str(folder)))
     assert proc.returncode == 1
     assert "failed a Dr.Jit test kernel" in proc.stderr and "libllvm19" in proc.stderr
 

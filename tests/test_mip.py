@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from pointillist.volumes import Volume, shepp_logan_phantom
+from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
 RNG = np.random.default_rng(8)
 
@@ -298,7 +298,7 @@ def test_bad_parameters_raise(mi):
 def test_window_and_colormap(mi):
     import matplotlib
 
-    from plugins.integrators.mip import apply_window, colormap_lut, parse_window
+    from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 
     assert parse_window("40,400") == (40.0, 400.0) and parse_window("bone") == (400.0, 1800.0)
     values = mi.Float([-1000.0, -160.0, 40.0, 240.0, 3000.0, float("nan")])
@@ -319,7 +319,7 @@ def test_scene_file_renders_and_matches_project(mi):
     raw = np.asarray(integrator.project(scene))
     assert raw.min() >= -1000 and raw.max() <= 1200 and raw.max() > 700  # skull seen
     image = np.asarray(mi.render(scene))
-    from plugins.integrators.mip import apply_window
+    from pointillist.imaging.window import apply_window
 
     expected = np.asarray(apply_window(mi.Float(raw.ravel()), 400.0, 1800.0)[0]).reshape(raw.shape)
     np.testing.assert_allclose(image[..., 0], expected, atol=1e-6)
@@ -347,7 +347,7 @@ def test_surfaces_and_emitters_are_not_traced(mi):
 def test_cli_exr_holds_raw_values_and_png_is_windowed(cli, tmp_path):
     from PIL import Image
 
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     vol = np.round(shepp_logan_phantom((12, 16, 20)).astype(np.float32))
     np.save(tmp_path / "v.npy", vol.astype(np.int16))

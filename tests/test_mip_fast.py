@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointillist.volumes import Volume, shepp_logan_phantom
+from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
 RNG = np.random.default_rng(80)
 
@@ -107,7 +107,7 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
 def test_half_key_and_float_reductions_equal_numpy(mi, nx):
     # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x);
     # nx odd: one float16 gather a voxel
-    from plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+    from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
 
     vol = RNG.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
     storage = mi.Float16(vol.ravel())
@@ -126,7 +126,7 @@ def test_half_key_and_float_reductions_equal_numpy(mi, nx):
 
 
 def test_half_keys_order_every_finite_float16(mi):
-    from plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
+    from pointillist.plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
 
     bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
     values = bits.view(np.float16)
@@ -235,7 +235,7 @@ def test_brick_skipping_with_a_camera_inside_and_rays_that_miss(mi):
 def test_brick_bounds_hold_every_sample(mi):
     # the bounds are the dilated brick max / min (nearest) widened by 2^-16 of the magnitude
     # (trilinear); check against a brute-force dilated max and against real trilinear lookups
-    from plugins.integrators._mip_accel import BRICK
+    from pointillist.plugins.integrators._mip_accel import BRICK
 
     vol = BRICK_VOLUMES["phantom"].astype(np.float32) * 0.37  # non-integer: single precision
     integrator = mi.load_dict({"type": "mip"})
@@ -284,7 +284,7 @@ def test_flat_brick_samples_repeat_the_texture_arithmetic(mi, value, dtype, prec
 
 @pytest.mark.parametrize("brick", [2, 4, 8])
 def test_brick_grid_equals_brute_force_dilated_extremes(mi, brick):
-    from plugins.integrators._mip_accel import brick_grid
+    from pointillist.plugins.integrators._mip_accel import brick_grid
 
     vol = RNG.random((17, 9, 24)).astype(np.float32)
     vol[RNG.random(vol.shape) < 0.1] = np.nan

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from imaging import tone
-from imaging.io import read_exr, to_8bit, write_exr, write_png
+from pointillist.imaging import tone
+from pointillist.imaging.io import read_exr, to_8bit, write_exr, write_png
 from pointillist.cli import main
 
 RNG = np.random.default_rng(3)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imaging.io import read_exr
+from pointillist.imaging.io import read_exr
 from pointillist.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -15,7 +15,7 @@ DEFAULT = ROOT / "scenes" / "default.xml"
 
 
 def test_register_is_idempotent_and_lists_plugins(mi):
-    import plugins
+    from pointillist import plugins
 
     first = plugins.register()
     assert plugins.register() == first == plugins.registered()
@@ -28,7 +28,7 @@ def test_register_without_variant_errors(tmp_path):
     import subprocess
     import sys
 
-    code = "import plugins\ntry:\n    plugins.register()\nexcept RuntimeError as e:\n    print(e)\n"
+    code = "from pointillist import plugins\ntry:\n    plugins.register()\nexcept RuntimeError as e:\n    print(e)\n"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert "no Mitsuba variant is set" in proc.stdout and "set_variant" in proc.stdout
 

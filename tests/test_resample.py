@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-import imaging  # noqa: F401  (libLLVM first)
-from imaging.resample import keys_kernel, resize, sample
+import pointillist.imaging  # noqa: F401  (libLLVM first)
+from pointillist.imaging.resample import keys_kernel, resize, sample
 
 RNG = np.random.default_rng(66)
 SHAPES = [(1, 1), (2, 2), (7, 9), (5, 4, 3)]

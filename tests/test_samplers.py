@@ -23,7 +23,7 @@ def _rest(sampler, n=3):
 
 # --------------------------------------------------------------------------- layout
 def test_grid_shape_nearest_rectangle(mi):
-    from plugins.samplers._base import grid_shape
+    from pointillist.plugins.samplers._base import grid_shape
 
     assert grid_shape(1) == (1, 1)
     assert grid_shape(16) == (4, 4)
@@ -83,7 +83,7 @@ def test_jitter_with_one_sample_is_uniform(mi):
 # -------------------------------------------------------------------------- poisson
 @pytest.mark.parametrize("spp", [2, 16, 64, 100])
 def test_poisson_min_distance_and_count(mi, spp):
-    from plugins.samplers.poisson import hexagonal_radius, poisson_disk_points, toroidal_min_distance
+    from pointillist.plugins.samplers.poisson import hexagonal_radius, poisson_disk_points, toroidal_min_distance
 
     points, radius = poisson_disk_points(spp)
     assert points.shape == (spp, 2) and points.dtype == np.float32
@@ -105,7 +105,7 @@ def test_poisson_min_distance_and_count(mi, spp):
 def test_toroidal_min_distance_against_scipy(mi):
     from scipy.spatial import cKDTree
 
-    from plugins.samplers.poisson import toroidal_min_distance
+    from pointillist.plugins.samplers.poisson import toroidal_min_distance
 
     rng = np.random.default_rng(5)
     pts = rng.random((300, 2))
@@ -115,7 +115,7 @@ def test_toroidal_min_distance_against_scipy(mi):
 
 
 def test_poisson_edge_counts(mi):
-    from plugins.samplers.poisson import MAX_POINTS, poisson_disk_points, toroidal_min_distance
+    from pointillist.plugins.samplers.poisson import MAX_POINTS, poisson_disk_points, toroidal_min_distance
 
     one, radius = poisson_disk_points(1)
     assert one.shape == (1, 2) and radius == math.inf
@@ -130,7 +130,7 @@ def test_poisson_edge_counts(mi):
         poisson_disk_points(0)
     # deterministic: the same count always gives the same set, and the shipped sets are
     # exactly what the generator returns
-    from plugins.samplers.poisson import SHIPPED_COUNTS, generate_poisson_disk_points, hexagonal_radius
+    from pointillist.plugins.samplers.poisson import SHIPPED_COUNTS, generate_poisson_disk_points, hexagonal_radius
 
     for n in (4, 16, 64, 25):
         generated = generate_poisson_disk_points(n)
@@ -232,7 +232,7 @@ def test_unbiased_in_renders(mi, integrator):
     (it aliases the small bright light); a sampler that reused dimensions inside the
     path loop or put samples outside their pixel is off by far more.
     """
-    import plugins
+    from pointillist import plugins
 
     if integrator not in plugins.registered() and integrator == "whitted":
         pytest.skip("whitted integrator not available yet")

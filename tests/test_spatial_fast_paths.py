@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import scipy.ndimage as ndi
 
-import imaging  # noqa: F401  (libLLVM first)
-from imaging import filters as F
+import pointillist.imaging  # noqa: F401  (libLLVM first)
+from pointillist.imaging import filters as F
 
 RNG = np.random.default_rng(606)
 

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from imaging.filters import threshold
-from imaging.io import to_8bit
-from imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch, dynamic_range,
+from pointillist.imaging.filters import threshold
+from pointillist.imaging.io import to_8bit
+from pointillist.imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch, dynamic_range,
                           equalize_histogram, gamma, histogram, lut, quantize, tonemap)
 
 RNG = np.random.default_rng(7)

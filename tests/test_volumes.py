@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import pointillist.volumes as volumes
-from pointillist.volumes import (Volume, load_volume, read_vol, shepp_logan_phantom, volume_texture,
+import pointillist.imaging.volumes as volumes
+from pointillist.imaging.volumes import (Volume, load_volume, read_vol, shepp_logan_phantom, volume_texture,
                                  write_vol)
 
 RNG = np.random.default_rng(12)

@@ -315,7 +315,7 @@ def _kernel_ops(mi, dr, scene, integrator=None):
 
 
 def test_scene_inspection_shrinks_the_kernel(mi, dr):
-    from plugins.integrators.whitted import inspect_scene
+    from pointillist.plugins.integrators.whitted import inspect_scene
 
     diffuse = _diffuse_scene(mi, {"type": "whitted"})
     glass = _diffuse_scene(mi, {"type": "whitted"}, sphere_bsdf={"type": "dielectric"})

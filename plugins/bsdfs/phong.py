@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from plugins.bsdfs._common import safe_power, texture_property, texture_range
+from pointillist.plugins.bsdfs._common import safe_power, texture_property, texture_range
 
 __all__ = ["PhongBSDF", "PLUGIN_NAME", "PLUGIN_CLASS"]
 

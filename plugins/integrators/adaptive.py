@@ -15,8 +15,8 @@ from statistics import NormalDist
 import drjit as dr
 import mitsuba as mi
 
-from plugins.bsdfs._common import boolean_property, integer_property, number_property, string_property
-from plugins.integrators._common import develop_film
+from pointillist.plugins.bsdfs._common import boolean_property, integer_property, number_property, string_property
+from pointillist.plugins.integrators._common import develop_film
 
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
 
@@ -57,7 +57,7 @@ def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
     (:func:`imaging.colour.srgb_encode_values`), or the identity with ``srgb=False``.
     Works on Python floats and Dr.Jit arrays.
     """
-    from imaging.colour import srgb_encode_values
+    from pointillist.imaging.colour import srgb_encode_values
 
     scale = 2.0 ** exposure if isinstance(exposure, (int, float)) else dr.exp2(exposure)
     v = dr.clip(value * scale, 0.0, 1.0)

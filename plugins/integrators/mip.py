@@ -8,101 +8,15 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from plugins.bsdfs._common import boolean_property, number_property, string_property
-from plugins.integrators._common import develop_film
-from pointillist.volumes import Volume, load_volume, volume_texture
+from pointillist.plugins.bsdfs._common import boolean_property, number_property, string_property
+from pointillist.plugins.integrators._common import develop_film
+from pointillist.imaging.volumes import Volume, load_volume, volume_texture
+from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 
-__all__ = ["MIPIntegrator", "parse_window", "colormap_lut", "apply_window", "window_image", "WINDOW_PRESETS", "MODES"]
+__all__ = ["MIPIntegrator", "MODES"]
 
 #: Projection modes (the ones napari and VTK offer).
 MODES = ("mip", "minip", "average")
-
-#: CT display windows (level, width) in Hounsfield units, as radiology viewers name them
-#: (e.g. Radiopaedia, "Windowing (CT)").
-WINDOW_PRESETS = {
-    "brain": (40.0, 80.0),
-    "subdural": (75.0, 215.0),
-    "soft": (40.0, 400.0),
-    "lung": (-600.0, 1500.0),
-    "bone": (400.0, 1800.0),
-    "angio": (300.0, 600.0),
-}
-
-
-def parse_window(text: str | tuple | None) -> tuple[float, float] | None:
-    """``"L,W"`` or a preset name (:data:`WINDOW_PRESETS`) -> ``(level, width)``; ``None``/``""`` -> None.
-
-    Raises ValueError unless width is a positive finite number and level finite.
-    """
-    if text is None or (isinstance(text, str) and not text.strip()):
-        return None
-    if isinstance(text, str):
-        key = text.strip().lower()
-        if key in WINDOW_PRESETS:
-            return WINDOW_PRESETS[key]
-        parts = key.split(",")
-        try:
-            level, width = (float(p) for p in parts)
-        except ValueError:
-            raise ValueError(f"window: expected 'level,width' (e.g. '40,400') or one of "
-                             f"{', '.join(WINDOW_PRESETS)}, got {text!r}") from None
-    else:
-        level, width = (float(v) for v in text)
-    if not (math.isfinite(level) and math.isfinite(width) and width > 0):
-        raise ValueError(f"window: expected a finite level and a positive width, got {level}, {width}")
-    return level, width
-
-
-def colormap_lut(name: str = "grey", size: int = 256) -> np.ndarray | None:
-    """RGB look-up table ``(size, 3)`` float32 of a matplotlib colormap; ``None`` for grey."""
-    if name in ("grey", "gray"):
-        return None
-    try:
-        import matplotlib
-
-        cmap = matplotlib.colormaps[name]
-    except (ImportError, KeyError):
-        raise ValueError(f"colormap: unknown colormap {name!r}; expected 'grey' or a matplotlib "
-                         "colormap name (e.g. 'viridis', 'inferno', 'bone')") from None
-    return np.ascontiguousarray(cmap(np.linspace(0.0, 1.0, size))[:, :3], dtype=np.float32)
-
-
-def apply_window(values, level: float, width: float, lut: np.ndarray | None = None):
-    """Map raw values to display RGB in 0..1: window, then colormap.
-
-    ``u = clip((v - (level - width / 2)) / width, 0, 1)``; grey gives
-    ``(u, u, u)``, a LUT is interpolated linearly between its entries. NaN
-    maps to 0 (black). ``values`` is a Dr.Jit ``Float`` (or array-like);
-    returns ``mi.Color3f``.
-    """
-    if not (math.isfinite(level) and math.isfinite(width) and width > 0):
-        raise ValueError(f"window: expected a finite level and a positive width, got {level}, {width}")
-    v = values if isinstance(values, mi.Float) else mi.Float(np.asarray(values, dtype=np.float32).ravel())
-    low = dr.opaque(mi.Float, level - width / 2.0)
-    inv = dr.opaque(mi.Float, 1.0 / width)
-    u = dr.clip((v - low) * inv, 0.0, 1.0)
-    u = dr.select(dr.isnan(u), 0.0, u)
-    if lut is None:
-        return mi.Color3f(u, u, u)
-    n = lut.shape[0]
-    x = u * (n - 1)
-    i0 = mi.UInt32(dr.minimum(dr.floor(x), n - 2))
-    w = x - mi.Float(i0)
-    table = mi.Float(np.ascontiguousarray(lut, dtype=np.float32).ravel())
-    rgb = []
-    for c in range(3):
-        a = dr.gather(mi.Float, table, i0 * 3 + c)
-        b = dr.gather(mi.Float, table, (i0 + 1) * 3 + c)
-        rgb.append(dr.fma(w, b - a, a))
-    return mi.Color3f(*rgb)
-
-
-def window_image(image, level: float, width: float, lut: np.ndarray | None = None) -> np.ndarray:
-    """:func:`apply_window` of a 2-D array of raw values: display RGB ``(H, W, 3)`` float32 in 0..1."""
-    values = np.ascontiguousarray(image, dtype=np.float32)
-    rgb = apply_window(mi.Float(values.ravel()), level, width, lut)
-    return np.stack([np.asarray(c) for c in rgb], axis=-1).reshape(*values.shape, 3)
-
 
 def _scalar_transform(value) -> mi.ScalarTransform4f:
     """A ``mi.ScalarTransform4f`` from any Mitsuba transform (float or double) or a 4x4 matrix."""
@@ -227,7 +141,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
 
     # ----------------------------------------------------------------------------------------
     def set_volume(self, volume: Volume | np.ndarray, *, spacing=None, to_world=None) -> None:
-        """Use ``volume`` (a :class:`~pointillist.volumes.Volume` or a (Z, Y, X) array).
+        """Use ``volume`` (a :class:`~pointillist.imaging.volumes.Volume` or a (Z, Y, X) array).
 
         ``spacing`` overrides the volume's; ``to_world`` (a 4x4 matrix or
         ``mi.ScalarTransform4f``) replaces the pose.
@@ -301,7 +215,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         largest voxel by at most ``13 * 2^-24 * M`` (M = largest magnitude), so the bounds are
         widened by ``2^-16 * M`` and rounded outwards.
         """
-        from plugins.integrators._mip_accel import BRICK, brick_grid
+        from pointillist.plugins.integrators._mip_accel import BRICK, brick_grid
 
         if self._bricks is None:
             tex = self._tex
@@ -374,7 +288,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ulp or two (weights rounded), so a ray whose maximum lies in such a region (air
         around a phantom) must still compute those samples to get the march's exact bits.
         """
-        from plugins.integrators._mip_accel import BRICK
+        from pointillist.plugins.integrators._mip_accel import BRICK
 
         upper, lower, grid = self.brick_bounds()
         bounds = upper if self.mode == "mip" else lower
@@ -580,7 +494,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
 
     def _column_values(self, axis: int, *, reverse: bool, repeats: int):
         """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
-        from plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
 
         shape = self.volume.data.shape
         storage = self._storage()
@@ -662,7 +576,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         """Raw values -> the integrator's output colour (windowed + colormap, or raw grey)."""
         if self.window is None:
             return mi.Color3f(value, value, value)
-        return apply_window(value, *self.window, self.lut)
+        return mi.Color3f(*apply_window(value, *self.window, self.lut))
 
     # ----------------------------------------------------------------------------------------
     def sample(self, scene, sampler, ray, medium=None, active=True):

@@ -7,7 +7,7 @@ import warnings
 import drjit as dr
 import mitsuba as mi
 
-from plugins.samplers._base import PatternSampler, grid_shape
+from pointillist.plugins.samplers._base import PatternSampler, grid_shape
 
 __all__ = ["GridSampler", "MAX_GRID_ASPECT"]
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, unit_float
-from plugins.samplers.grid import _GridLayout
+from pointillist.plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, unit_float
+from pointillist.plugins.samplers.grid import _GridLayout
 
 __all__ = ["JitterSampler"]
 

@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, PatternSampler, unit_float
+from pointillist.plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, PatternSampler, unit_float
 
 __all__ = ["PoissonSampler", "poisson_disk_points", "generate_poisson_disk_points", "SHIPPED_COUNTS", "toroidal_min_distance", "hexagonal_radius",
            "BRIDSON_CANDIDATES", "START_RELATIVE_RADIUS", "RADIUS_STEP"]

@@ -134,7 +134,7 @@ def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
 
 def _check_reference(reference: Path, size: tuple[int, int]) -> None:
     """The reference must have the render size ``(width, height)``."""
-    from imaging.io import read_exr
+    from pointillist.imaging.io import read_exr
 
     try:
         image = read_exr(reference).image

@@ -118,7 +118,7 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
                    precision: str = "auto", background: float | None = None, integrator=None):
     """Render the raw projection ``(H, W)`` (numpy float32) of a volume from a view.
 
-    ``volume`` is a :class:`pointillist.volumes.Volume` or a (Z, Y, X) array.
+    ``volume`` is a :class:`pointillist.imaging.volumes.Volume` or a (Z, Y, X) array.
     Pass ``integrator`` (a ``mip`` integrator holding the volume) to reuse its
     texture across views. Returns ``(image, integrator)``.
     """
@@ -128,7 +128,7 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
         mi = pointillist.setup()
     else:  # already set up (a mip integrator exists): skip re-registering the plugins (~10 ms)
         import mitsuba as mi
-    from pointillist.volumes import Volume
+    from pointillist.imaging.volumes import Volume
 
     if not isinstance(volume, Volume):
         volume = Volume(np.asarray(volume))
@@ -215,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     import pointillist
 
     pointillist.setup()
-    from plugins.integrators.mip import colormap_lut, parse_window
+    from pointillist.imaging.window import colormap_lut, parse_window
 
     window = parse_window(args.window) if args.window else None
     lut = colormap_lut(args.colormap)
@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
             spacing = [float(s) for s in args.spacing.split(",")]
         except ValueError:
             raise UsageError(f"--spacing: expected sx,sy,sz numbers, got {args.spacing!r}") from None
-    from pointillist.volumes import load_volume
+    from pointillist.imaging.volumes import load_volume
 
     start = time.perf_counter()
     volume = load_volume(args.volume, spacing=spacing)
@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         names = [out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(args.turntable)]
     else:
         names = [out]
-    from imaging.io import check_output_path
+    from pointillist.imaging.io import check_output_path
 
     for name in names:
         check_output_path(name, [args.volume], name="--output")
@@ -301,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write(path: Path, image: np.ndarray, volume, args, window, lut, view) -> np.ndarray | None:
-    from imaging.io import to_8bit, write_exr, write_png
+    from pointillist.imaging.io import to_8bit, write_exr, write_png
 
     if path.suffix.lower() == ".exr":
         meta = {"mode": args.mode, "interpolation": args.interpolation, "step": float(args.step),
@@ -309,7 +309,7 @@ def _write(path: Path, image: np.ndarray, volume, args, window, lut, view) -> np
                 "view": view["view"] or f"azimuth={view.get('azimuth', 0):g},elevation={view.get('elevation', 0):g}"}
         write_exr(path, image.astype(np.float32), meta, inputs=[args.volume])
         return None
-    from plugins.integrators.mip import window_image
+    from pointillist.imaging.window import window_image
 
     pixels = window_image(image, *window, lut)
     write_png(path, pixels, srgb=False, max_value=1.0, inputs=[args.volume])

@@ -97,15 +97,15 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--plot-file: expected a .png file name, got {plot}")
         if plot.resolve() == out.resolve():
             raise UsageError(f"--plot-file: {plot} is the --output file")
-        from imaging.io import check_output_path
+        from pointillist.imaging.io import check_output_path
 
         try:
             check_output_path(plot, [source], name="--plot")
         except ValueError as error:
             raise UsageError(str(error)) from None
 
-    from imaging import as_tensor
-    from imaging.io import read_image, write_exr, write_png
+    from pointillist.imaging import as_tensor
+    from pointillist.imaging.io import read_image, write_exr, write_png
 
     try:
         image, metadata, _layers = read_image(source)
@@ -161,7 +161,7 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import atomic_write, check_output_path
 
     path = check_output_path(path, inputs, name="--plot")
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))

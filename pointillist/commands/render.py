@@ -98,7 +98,7 @@ def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *
     """Write a render's EXR (extra channels as layers, metadata in the header) and PNG preview."""
     import numpy as np
 
-    from imaging.io import write_exr, write_png
+    from pointillist.imaging.io import write_exr, write_png
 
     pixels = np.asarray(image)
     names = list(scene.integrator().aov_names())
@@ -127,7 +127,7 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import atomic_write, check_output_path
 
     path = check_output_path(path, inputs, name="sample-count heat map")
     counts = np.asarray(counts, dtype=np.float64)

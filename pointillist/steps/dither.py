@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from imaging import dither
+from pointillist.imaging import dither
 from pointillist.steps import step
 
 #: Methods and the keyword options each accepts (besides ``method``).

@@ -8,7 +8,7 @@ Examples: ``--steps "sobel;normalize;threshold:level=128"``,
 
 from __future__ import annotations
 
-from imaging import filters, resample
+from pointillist.imaging import filters, resample
 from pointillist.steps import step
 
 

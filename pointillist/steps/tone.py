@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging import colour, tone
+from pointillist.imaging import colour, tone
 from pointillist.steps import step
 
 

@@ -134,7 +134,7 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None) -> Volume:
     Examples
     --------
     >>> import numpy as np, tempfile, os
-    >>> from pointillist.volumes import load_volume
+    >>> from pointillist.imaging.volumes import load_volume
     >>> path = os.path.join(tempfile.mkdtemp(), "v.npy")
     >>> np.save(path, np.zeros((2, 3, 4), np.int16))
     >>> vol = load_volume(path, spacing=(0.5, 0.5, 2.0))
@@ -212,7 +212,7 @@ def write_vol(path: str | os.PathLike, volume: Volume | np.ndarray, *, spacing: 
         volume = Volume(volume.data, spacing)
     nx, ny, nz = volume.shape_xyz
     ex, ey, ez = volume.extent
-    from imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import atomic_write, check_output_path
 
     path = check_output_path(path, name="path")
 
@@ -456,7 +456,7 @@ def shepp_logan_phantom(shape: int | tuple[int, int, int] = 64, *, dtype: Any = 
 
     Examples
     --------
-    >>> from pointillist.volumes import shepp_logan_phantom
+    >>> from pointillist.imaging.volumes import shepp_logan_phantom
     >>> v = shepp_logan_phantom(32)
     >>> v.shape, v.dtype, int(v[0, 0, 0]), int(v[16, 16, 16])
     ((32, 32, 32), dtype('int16'), -1000, 40)
