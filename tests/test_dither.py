@@ -206,7 +206,7 @@ def test_colour_is_per_channel():
 
 
 def test_threshold_is_the_filters_function():
-    assert dither.threshold is imaging.filters.threshold
+    assert dither.threshold is pointillist.imaging.filters.threshold
     assert np.asarray(dither.threshold(np.array([[127.99, 128.0]]))).tolist() == [[0.0, 255.0]]
 
 
