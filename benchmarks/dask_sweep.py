@@ -68,7 +68,8 @@ def main() -> int:
     from tqdm import tqdm
 
     import pointillist
-    from pointillist.distributed import RenderTask, render_task, run_tasks, start_cluster
+    from pointillist.distributed import run_tasks, start_cluster
+    from pointillist.tiles import RenderTask, render_task
 
     mi = pointillist.setup()
     params = {"res": str(args.res)}

@@ -44,7 +44,7 @@ def _median(fn, repeats):
 
 
 def _ours(volume, integrator=None, **view):
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     return project_volume(volume, integrator=integrator, **view)
 
@@ -55,7 +55,7 @@ def part_a(n: int, repeats: int) -> dict:
     from scipy.ndimage import affine_transform
 
     import pointillist
-    from pointillist.commands.mip import view_axes
+    from pointillist.mip import view_axes
     from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
     pointillist.setup()
@@ -132,7 +132,7 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     build = time.perf_counter() - t
     view = dict(view=None, azimuth=30.0, elevation=20.0, size=(512, 512))
     t = time.perf_counter()
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     mi = pointillist.setup()
     integrator = mi.load_dict({"type": "mip"})

@@ -77,7 +77,8 @@ def main() -> None:
     import mitsuba as mi
 
     import pointillist
-    from pointillist.compare import METHODS, fit_slope, load_configured_scene
+    from pointillist.compare_methods import METHODS, load_configured_scene
+    from pointillist.compare_report import fit_slope
 
     pointillist.setup()
     from pointillist.plugins.samplers.poisson import poisson_disk_points

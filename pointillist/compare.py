@@ -2,244 +2,57 @@
 
 The sweep is a list of :class:`Task` (method, sweep value, seed). Each task is one
 call of :func:`render_one`, a pure, picklable function (it sets Mitsuba up itself,
-loads the scene with the method swapped in, renders with
-:func:`pointillist.scene.timed_render`, writes ``renders/<task>.exr`` and
-``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose EXR and
-record exist for the same scene is not rendered again, so an interrupted sweep
+loads the scene with the method swapped in (:mod:`pointillist.compare_methods`),
+renders with :func:`pointillist.scene.timed_render`, writes ``renders/<task>.exr``
+and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose EXR
+and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
-(:func:`image_errors`), and :func:`write_report` writes ``results.csv``,
-``results.md`` and the two log-log plots.
-
-Methods live in :data:`METHODS` (:func:`register_method`): a sampler method swaps
-the ``<sampler>`` of every ``<sensor>`` of the scene XML (so any user scene works,
-whatever its sampler); an integrator method (e.g. adaptive super-sampling, whose
-sweep parameter is a threshold) swaps the ``<integrator>``. Every Mitsuba sampler
-plugin (``stratified``, ``multijitter``, ``orthogonal``, ``ldsampler``,
-``independent``) is a valid method too.
+(:func:`image_errors`), and :func:`pointillist.compare_report.write_report` writes
+``results.csv``, ``results.md`` and the two log-log plots. On a Dask cluster
+(:func:`prerender_sweep`) every missing render is a task; the scoring pass that
+follows finds them finished. :func:`compare_scene` is ``pointillist compare``.
 """
 
 from __future__ import annotations
 
-import csv
-import hashlib
 import json
 import math
 import os
-import xml.etree.ElementTree as ET
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pointillist.compare_methods import METHODS, load_configured_scene, resolve_methods, scene_key, sweep_parameter
+from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Method", "METHODS", "MITSUBA_SAMPLERS", "register_method", "resolve_methods", "configure_scene",
-    "scene_key", "load_configured_scene", "Task", "RenderRecord", "render_one", "task_paths",
-    "render_reference", "image_errors", "fit_slope", "run_sweep", "summarise", "equal_time_ranking",
-    "equal_error_ranking", "setting_label",
-    "write_report", "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER",
-    "REFERENCE_SEED",
+    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "run_sweep",
+    "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
+    "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
 ]
+
 
 #: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
 RELMSE_EPSILON = 0.01
+
 #: Default sweep of ``pointillist compare``.
 DEFAULT_SPP = (1, 4, 16, 64, 256)
+
 DEFAULT_METHODS = ("grid", "jitter", "random", "poisson")
+
 #: The reference is rendered with Mitsuba's own stratified sampler (all dimensions
 #: stratified, an implementation independent of the samplers compared) ...
 REFERENCE_SAMPLER = "stratified"
+
 #: ... with a seed no sweep uses.
 REFERENCE_SEED = 1_000_003
-#: Mitsuba's built-in samplers, all valid peers.
-MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
-# ----------------------------------------------------------------------------- methods
-@dataclass(frozen=True)
-class Method:
-    """How the scene is configured for one compared method.
-
-    Attributes
-    ----------
-    name : str
-        The name on the command line (``random``).
-    plugin : str
-        The Mitsuba plugin type put into the scene (``independent``).
-    kind : {"sampler", "integrator"}
-        ``sampler``: every sensor's ``<sampler>`` becomes ``<sampler type=plugin>``
-        with ``sample_count`` = the sweep value; ``integrator``: the scene's
-        ``<integrator>`` becomes ``<integrator type=plugin>`` with the property
-        ``parameter`` = the sweep value.
-    parameter : str
-        The sweep parameter: ``spp`` for samplers (the ``--spp`` list), or the
-        integrator property swept (e.g. ``threshold``).
-    values : tuple of float
-        The default sweep of a non-``spp`` parameter.
-    configure : callable, optional
-        ``configure(root, value)`` edits the parsed scene XML in place instead of
-        the default for ``kind`` (must be a module-level function: tasks are pickled).
-    """
-
-    name: str
-    plugin: str
-    kind: str = "sampler"
-    parameter: str = "spp"
-    values: tuple[float, ...] = ()
-    configure: Callable[[ET.Element, float], None] | None = None
-
-
-#: Registered methods by name. ``random`` is Mitsuba's ``independent``.
-METHODS: dict[str, Method] = {}
-
-
-def register_method(method: Method) -> None:
-    """Add ``method`` to :data:`METHODS` (replacing one of the same name)."""
-    if method.kind not in ("sampler", "integrator"):
-        raise ValueError(f"method.kind: expected 'sampler' or 'integrator', got {method.kind!r}")
-    METHODS[method.name] = method
-
-
-for _name, _plugin in (("grid", "grid"), ("jitter", "jitter"), ("poisson", "poisson"),
-                       ("random", "independent")):
-    register_method(Method(_name, _plugin))
-for _name in MITSUBA_SAMPLERS:
-    register_method(Method(_name, _name))
-
-
-def _configure_adaptive(root: ET.Element, value: float) -> None:
-    """Wrap the scene's ``<integrator>`` in ``<integrator type="adaptive">`` with
-    ``threshold`` = ``value`` (an adaptive integrator already there gets the threshold)."""
-    old = root.findall("integrator")
-    if old and old[0].get("type") == "adaptive":
-        adaptive = old[0]
-        for element in adaptive.findall("*[@name='threshold']"):
-            adaptive.remove(element)
-        adaptive.insert(0, _property("float", "threshold", float(value)))
-        return
-    position = list(root).index(old[0]) if old else 0
-    for element in old:
-        root.remove(element)
-    adaptive = ET.Element("integrator", {"type": "adaptive"})
-    adaptive.append(_property("float", "threshold", float(value)))
-    for name, depth in ADAPTIVE_DEPTHS.items():
-        adaptive.append(_property("integer", name, depth))
-    adaptive.append(old[0] if old else ET.Element("integrator", {"type": "path"}))
-    root.insert(position, adaptive)
-
-
-#: Adaptive super-sampling (plugins/integrators/adaptive.py) sweeps its threshold on
-#: the 0..255 display scale, around the scene's own integrator, starting from the 3 x 3
-#: lattice per pixel (min_depth 1) down to depth 3: the best error-vs-time curve on
-#: scenes/edges.xml (benchmarks/RESULTS.md, "adaptive"); below 16 the error stops falling.
-ADAPTIVE_THRESHOLDS = (128.0, 64.0, 32.0, 16.0)
-ADAPTIVE_DEPTHS = {"min_depth": 1, "max_depth": 3}
-register_method(Method("adaptive", "adaptive", kind="integrator", parameter="threshold",
-                       values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive))
-
-
-def resolve_methods(names: str | Iterable[str]) -> list[Method]:
-    """Parse ``grid,jitter,...`` into methods; UsageError names an unknown one."""
-    if isinstance(names, str):
-        names = [n.strip() for n in names.split(",")]
-    names = [n for n in names if n]
-    if not names:
-        raise UsageError("--samplers: expected a comma-separated list of sampler names")
-    methods, seen = [], set()
-    for name in names:
-        if name not in METHODS:
-            raise UsageError(f"--samplers: unknown sampler {name!r}; expected some of "
-                             f"{', '.join(sorted(METHODS))}")
-        if name not in seen:
-            seen.add(name)
-            methods.append(METHODS[name])
-    return methods
-
-
-# ------------------------------------------------------------------------ scene set-up
-def _property(tag: str, name: str, value: Any) -> ET.Element:
-    return ET.Element(tag, {"name": name, "value": str(value)})
-
-
-def configure_scene(xml_text: str, method: Method, value: float) -> str:
-    """The scene XML text with ``method`` swapped in at sweep value ``value``.
-
-    Sampler methods replace the ``<sampler>`` of every top-level ``<sensor>`` (adding
-    one where a sensor has none) by ``<sampler type=plugin>`` holding only
-    ``sample_count``: properties of the old sampler (which may not exist for the new
-    type) are dropped. Integrator methods replace the ``<integrator>``.
-
-    Raises UsageError for XML that does not parse or a scene without a sensor.
-    """
-    try:
-        root = ET.fromstring(xml_text)
-    except ET.ParseError as error:
-        raise UsageError(f"scene: not valid XML ({error})") from None
-    if method.configure is not None:
-        method.configure(root, value)
-    elif method.kind == "sampler":
-        sensors = root.findall("sensor")
-        if not sensors:
-            raise UsageError("scene: no <sensor> element at the top level of the scene file "
-                             "(compare swaps the sensor's <sampler>)")
-        for sensor in sensors:
-            old = sensor.findall("sampler")
-            position = list(sensor).index(old[0]) if old else len(sensor)
-            for element in old:
-                sensor.remove(element)
-            sampler = ET.Element("sampler", {"type": method.plugin})
-            sampler.append(_property("integer", "sample_count", int(value)))
-            sensor.insert(position, sampler)
-    else:
-        old = root.findall("integrator")
-        position = list(root).index(old[0]) if old else 0
-        for element in old:
-            root.remove(element)
-        integrator = ET.Element("integrator", {"type": method.plugin})
-        integrator.append(_property("float", method.parameter, float(value)))
-        root.insert(position, integrator)
-    return ET.tostring(root, encoding="unicode")
-
-
-def scene_key(scene_path: str | os.PathLike, params: dict[str, str] | None = None) -> str:
-    """A short hash of the scene file's bytes and parameters (cache validity)."""
-    digest = hashlib.sha1(Path(scene_path).read_bytes())
-    digest.update(json.dumps(sorted((params or {}).items())).encode())
-    return digest.hexdigest()[:12]
-
-
-def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: float,
-                          params: dict[str, str] | None = None):
-    """Load ``scene_path`` with ``method`` swapped in; relative paths resolve as in the file.
-
-    Pointillist must be set up (:func:`pointillist.setup`).
-    """
-    import mitsuba as mi
-
-    from pointillist.scene import mitsuba_message
-
-    path = Path(scene_path)
-    if not path.is_file():
-        raise UsageError(f"scene: no such file: {path}")
-    text = configure_scene(path.read_text(), method, value)
-    resolver = mi.file_resolver()
-    saved = mi.FileResolver(resolver)
-    resolver.prepend(str(path.resolve().parent))
-    try:
-        # parallel=False as in pointillist.scene.load_scene: the parallel loader failed about one
-        # run in ten here (hdrfilm: std::bad_alloc) and orders plugins (hence kernels) randomly.
-        return mi.load_string(text, parallel=False, **(params or {}))
-    except RuntimeError as error:
-        raise UsageError(f"scene {path} with {method.name}: {mitsuba_message(error)}") from None
-    finally:
-        resolver.clear()
-        for i in range(len(saved)):
-            resolver.append(saved[i])
-
-
+# ------------------------------------------------------------------------------ tasks
 # ------------------------------------------------------------------------------ tasks
 @dataclass(frozen=True)
 class Task:
@@ -252,18 +65,19 @@ class Task:
     @property
     def stem(self) -> str:
         value = f"{int(self.value):05d}" if float(self.value).is_integer() else f"{self.value:g}"
-        parameter = METHODS[self.method].parameter if self.method in METHODS else "spp"
+        parameter = sweep_parameter(self.method)
         return f"{self.method}_{parameter}{value}_seed{self.seed}"
-
 
 @dataclass
 class RenderRecord:
     """What :func:`render_one` returns (and stores as JSON beside the EXR).
 
-    Times in seconds: ``time`` is the timed render's wall time without its JIT
-    compilation (trace + kernel execution), the figure the comparison plots;
-    ``compile`` is its JIT compilation plus, for a method's first render in a process,
-    that of the untimed warm-up render (:func:`render_one`).
+    Times in seconds, each reported apart: ``trace``, ``compile``, ``execute`` and
+    ``total`` are those of the timed render (``total`` its wall time, which includes
+    the other three); ``time = total - compile`` is the figure the comparison plots
+    (trace + kernel execution). ``warm_up`` is the wall time of the untimed warm-up
+    render before a method's first render in a process (0 without one) and
+    ``warm_up_compile`` its JIT compilation (:func:`render_one`).
     ``spp`` is the samples per pixel actually taken (the sampler may round the
     requested count; adaptive methods report their mean).
     """
@@ -283,6 +97,8 @@ class RenderRecord:
     kernels: int
     cache_hits: int
     scene_key: str
+    warm_up: float = 0.0
+    warm_up_compile: float = 0.0
     cached: bool = False
     rmse: float = math.nan
     relmse: float = math.nan
@@ -295,7 +111,6 @@ class RenderRecord:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-
 def task_paths(out_dir: str | os.PathLike, task: Task, key: str) -> tuple[Path, Path]:
     """``(exr, json)`` paths of a task's render: ``out_dir/renders/<scene key>/<task>.*``.
 
@@ -304,7 +119,6 @@ def task_paths(out_dir: str | os.PathLike, task: Task, key: str) -> tuple[Path, 
     """
     folder = Path(out_dir) / "renders" / key
     return folder / f"{task.stem}.exr", folder / f"{task.stem}.json"
-
 
 def _load_record(path: Path, key: str, exr: Path) -> RenderRecord | None:
     if not (path.is_file() and exr.is_file()):
@@ -320,16 +134,13 @@ def _load_record(path: Path, key: str, exr: Path) -> RenderRecord | None:
     record.cached = True
     return record
 
-
 def _write_json(path: Path, data: dict) -> None:
     from pointillist.imaging.io import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
-
 #: Methods rendered at least once in this process (:func:`render_one`'s warm-up).
 _WARMED: set[str] = set()
-
 
 def render_one(scene_path: str, method: str, value: float, seed: int, params: dict[str, str] | None,
                out_dir: str, key: str | None = None, warm_up: bool = True) -> RenderRecord:
@@ -344,7 +155,7 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     render pays one-off costs (plugin imports, first traces, the allocator's growth;
     measured on scenes/edges.xml: the first ``adaptive`` render 47 ms, the next ones
     29 ms), which would otherwise land on whichever sweep point comes first. The
-    warm-up's compile time is added to the record's ``compile``.
+    warm-up's times are recorded apart (``warm_up``, ``warm_up_compile``).
 
     Parameters
     ----------
@@ -376,15 +187,15 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     exr.parent.mkdir(parents=True, exist_ok=True)
 
     pointillist.setup()
-    from pointillist.commands.render import write_render
+    from pointillist.render_output import write_render
     from pointillist.scene import scene_info, timed_render
 
     spec = METHODS[method]
     scene = load_configured_scene(scene_path, spec, value, params)
     spp = int(value) if spec.parameter == "spp" else None
-    warm_compile = 0.0
+    warm = None
     if warm_up and method not in _WARMED:
-        warm_compile = timed_render(scene, spp=spp, seed=int(seed))[1].compile
+        warm = timed_render(scene, spp=spp, seed=int(seed))[1]
         _WARMED.add(method)
     image, timing = timed_render(scene, spp=spp, seed=int(seed))
     info = scene_info(scene)  # after the render: the sampler's own rounding of spp applies
@@ -400,12 +211,12 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     record = RenderRecord(
         method=method, value=float(value), seed=int(seed), spp=samples, exr=f"{key}/{exr.name}",
         width=int(info["width"]), height=int(info["height"]), trace=timing.trace,
-        compile=timing.compile + warm_compile, execute=timing.execute, total=timing.total,
+        compile=timing.compile, execute=timing.execute, total=timing.total,
         time=max(timing.total - timing.compile, 0.0), kernels=timing.kernels,
-        cache_hits=timing.cache_hits, scene_key=key)
+        cache_hits=timing.cache_hits, scene_key=key, warm_up=warm.total if warm else 0.0,
+        warm_up_compile=warm.compile if warm else 0.0)
     _write_json(record_path, record.as_dict())
     return record
-
 
 def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: str, spp: int,
                      key: str | None = None) -> Path:
@@ -416,12 +227,12 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
 
 
 # ----------------------------------------------------------------------------- errors
+# ----------------------------------------------------------------------------- errors
 def _rgb(image: np.ndarray) -> np.ndarray:
     image = np.asarray(image, dtype=np.float64)
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=2)
     return image[..., :3]
-
 
 def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
@@ -461,15 +272,7 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
     return result
 
 
-def fit_slope(x: Sequence[float], y: Sequence[float]) -> float:
-    """Least-squares slope of log(y) against log(x); NaN with fewer than two usable points."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
-    if np.unique(x[ok]).size < 2:
-        return math.nan
-    return float(np.polyfit(np.log(x[ok]), np.log(y[ok]), 1)[0])
-
-
+# ------------------------------------------------------------------------------ sweep
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True,
@@ -492,213 +295,154 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     return records
 
 
-def summarise(records: Sequence[RenderRecord]) -> list[dict[str, Any]]:
-    """Mean and standard deviation over seeds per (method, value)."""
-    groups: dict[tuple[str, float], list[RenderRecord]] = {}
-    for record in records:
-        groups.setdefault((record.method, record.value), []).append(record)
-    rows = []
-    for (method, value), group in groups.items():
-        row: dict[str, Any] = {"method": method, "value": value, "seeds": len(group)}
-        for name in ("spp", "time", "compile", "rmse", "relmse", "flip"):
-            data = np.array([getattr(r, name) for r in group], float)
-            row[name] = float(data.mean())
-            row[f"{name}_std"] = float(data.std(ddof=1)) if len(data) > 1 else 0.0
-        row["mse"] = float(np.mean([r.rmse ** 2 for r in group]))
-        rows.append(row)
-    return rows
+# --------------------------------------------------------------------- sweeps on a Dask cluster
+# --------------------------------------------------------------------------- `pointillist compare` sweeps
+def compare_task(call: tuple) -> Any:
+    """Run :func:`render_one` ``(*call)`` in this process (a worker).
 
-
-def slopes(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
-    """Fitted log-log slopes per method: MSE against spp and against time."""
-    result = {}
-    for method in dict.fromkeys(r["method"] for r in rows):
-        mine = [r for r in rows if r["method"] == method]
-        result[method] = {"mse_vs_spp": fit_slope([r["spp"] for r in mine], [r["mse"] for r in mine]),
-                          "mse_vs_time": fit_slope([r["time"] for r in mine], [r["mse"] for r in mine])}
-    return result
-
-
-def equal_time_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
-                       metric: str = "mse") -> list[tuple[float, list[tuple[str, float]]]]:
-    """For each time budget, the methods ranked by the lowest ``metric`` reached within it.
-
-    A method reaches, within budget ``T``, the lowest mean error among its sweep
-    points whose mean render time is at most ``T``; methods with no point that fast
-    are left out of that budget. Default budgets: 6 log-spaced times from the
-    fastest to the slowest mean render.
+    ``render_one`` renders one (sampler, value, seed), times it here and writes
+    its EXR and JSON record into the comparison folder (its on-disk cache).
     """
-    times = np.array([r["time"] for r in rows], float)
-    if budgets is None:
-        lo, hi = float(times.min()), float(times.max())
-        budgets = np.geomspace(lo, hi, 6) if hi > lo else [hi]
-    ranking = []
-    for budget in budgets:
-        best: dict[str, float] = {}
-        for r in rows:
-            if r["time"] <= budget * (1 + 1e-9) and np.isfinite(r[metric]):
-                best[r["method"]] = min(best.get(r["method"], math.inf), r[metric])
-        ranking.append((float(budget), sorted(best.items(), key=lambda kv: kv[1])))
-    return ranking
+    setup_process()
+    return render_one(*call)
 
+def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params: dict[str, str] | None,
+                    out_dir: str | os.PathLike, reference_spp: int | None = None,
+                    retries: int = DEFAULT_RETRIES, progress: bool = True) -> int:
+    """Render a comparison's missing renders (and its reference) as tasks on ``client``.
 
-def equal_error_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
-                        metric: str = "rmse") -> list[tuple[float, list[tuple[str, float, float]]]]:
-    """For each error budget, the methods ranked by the shortest time reaching it.
-
-    The dual of :func:`equal_time_ranking`: a method reaches budget ``E`` with its
-    fastest sweep point whose mean ``metric`` is at most ``E``; methods with no point
-    that accurate are left out of that budget. Each entry is ``(method, value,
-    time)``. Default budgets: the errors of the first method's points in ``rows``
-    (e.g. ``jitter`` at each spp, so a line answers "how long does each method take
-    to get as close as jitter at 16 spp").
-
-    Examples
-    --------
-    >>> rows = [{"method": "a", "value": 4, "time": 1.0, "rmse": 0.2},
-    ...         {"method": "b", "value": 64, "time": 0.5, "rmse": 0.1}]
-    >>> equal_error_ranking(rows)
-    [(0.2, [('b', 64.0, 0.5), ('a', 4.0, 1.0)])]
+    Every :class:`Task` (and the reference, when
+    ``reference_spp`` is given) whose EXR and JSON record are not yet in
+    ``out_dir`` becomes one :func:`compare_task`; the workers write them where a
+    serial ``compare`` would, so the serial scoring pass that follows finds
+    them all finished. ``out_dir`` and the scene must be reachable by the
+    workers under the same (absolute) paths. Returns how many were rendered.
     """
-    if budgets is None:
-        first = rows[0]["method"] if rows else None
-        budgets = [r[metric] for r in rows if r["method"] == first]
-    ranking = []
-    for budget in budgets:
-        best: dict[str, tuple[float, float]] = {}
-        for r in rows:
-            if r[metric] <= budget * (1 + 1e-9) and np.isfinite(r["time"]):
-                if r["time"] < best.get(r["method"], (math.inf, math.inf))[1]:
-                    best[r["method"]] = (float(r["value"]), float(r["time"]))
-        ranked = sorted(((m, v, t) for m, (v, t) in best.items()), key=lambda entry: entry[2])
-        ranking.append((float(budget), ranked))
-    return ranking
+    scene = str(Path(scene).resolve())
+    out_dir = str(Path(out_dir).resolve())
+    params = dict(params or {})
+    key = scene_key(scene, params)
+    calls = []
+    if reference_spp:
+        calls.append((scene, REFERENCE_SAMPLER, int(reference_spp), REFERENCE_SEED, params,
+                      str(Path(out_dir) / "reference"), key, False))  # False: no warm-up render
+    calls += [(scene, t.method, t.value, int(t.seed), params, out_dir, key) for t in tasks]
+    todo = [c for c in calls
+            if not all(p.is_file() for p in task_paths(c[5], Task(c[1], c[2], c[3]), key))]
+    keys = [json_key(c) for c in todo]
+    run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
+              desc="compare on cluster")
+    return len(todo)
 
 
-def setting_label(method: str, value: float) -> str:
-    """The sweep point as people read it: ``16 spp`` for a sampler, ``threshold 64``
-    for an integrator method (its :attr:`Method.parameter`)."""
-    spec = METHODS.get(method)
-    parameter = spec.parameter if spec is not None else "spp"
-    return f"{value:g} spp" if parameter == "spp" else f"{parameter} {value:g}"
+# ------------------------------------------------------------------------ `pointillist compare`
+@dataclass
+class CompareResult:
+    """What :func:`compare_scene` did: the records, the report's files, the reference used."""
+
+    records: list[RenderRecord]
+    paths: dict[str, Path]
+    reference: Path
+    out_dir: Path
+    cluster_renders: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def new(self) -> int:
+        """How many renders were made by this run (the rest came from the folder)."""
+        return sum(1 for r in self.records if not r.cached)
 
 
-def _sweeps_spp(method: str) -> bool:
-    spec = METHODS.get(method)
-    return spec is None or spec.parameter == "spp"
+def sweep_tasks(methods: Sequence[str] | str, spp: Sequence[int], seeds: int) -> list[Task]:
+    """The tasks of a sweep: every method at every sweep value (``spp`` for samplers, the
+    method's own values otherwise) and seed ``0..seeds-1``."""
+    tasks = []
+    for method in resolve_methods(methods):
+        values = list(spp) if method.parameter == "spp" else list(method.values)
+        if not values:
+            raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
+        tasks += [Task(method.name, v, seed) for v in values for seed in range(int(seeds))]
+    return tasks
 
 
-_CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "execute", "total",
-               "kernels", "cache_hits", "rmse", "relmse", "flip", "width", "height", "exr")
+def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DEFAULT_METHODS,
+                  spp: Sequence[int] = DEFAULT_SPP, seeds: int = 1, reference_spp: int = 4096,
+                  reference: str | os.PathLike | None = None, out_dir: str | os.PathLike | None = None,
+                  params: dict[str, str] | None = None, workers: int | None = None, scheduler: str | None = None,
+                  progress: bool = True, log: Callable[[str], None] = lambda line: None) -> CompareResult:
+    """``pointillist compare``: sweep ``methods`` over ``spp`` and ``seeds`` on one scene, score
+    every render against a reference and write the report into ``out_dir``.
+
+    The reference is ``reference`` (an EXR of the render's size) or a render of
+    :data:`REFERENCE_SAMPLER` at ``reference_spp``, kept in ``out_dir/reference``.
+    Everything that can be checked (scene, sample counts, reference size) is checked
+    before the first render. ``log`` receives progress lines (e.g. ``print``).
+
+    Raises
+    ------
+    UsageError
+        For a missing scene, unknown method, an output folder that is a file, a sample
+        count Mitsuba cannot take, or a reference of the wrong size.
+    """
+    from pointillist.compare_report import write_report
+    from pointillist.scene import check_sample_count
+
+    params = dict(params or {})
+    tasks = sweep_tasks(methods, spp, seeds)
+    scene = Path(scene)
+    if not scene.is_file():
+        raise UsageError(f"scene: no such file: {scene}")
+    out = Path(out_dir) if out_dir else Path("out") / "compare" / scene.stem
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out: {out} exists and is not a folder")
+    if reference is not None and not Path(reference).is_file():
+        raise UsageError(f"--reference: no such file: {reference}")
+    size = _scene_size(scene, params)
+    for count in [t.value for t in tasks if sweep_parameter(t.method) == "spp"] + (
+            [] if reference else [reference_spp]):
+        check_sample_count(*size, int(count))  # before any render starts (and its progress bar)
+    if reference is not None:
+        _check_reference(Path(reference), size)
+    out.mkdir(parents=True, exist_ok=True)
+    cluster_renders = 0
+    if workers or scheduler:
+        with open_client(workers, scheduler) as client:
+            cluster_renders = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
+                                              reference_spp=None if reference else reference_spp,
+                                              progress=progress)
+        log(f"{cluster_renders} renders done on the cluster")
+    if reference is not None:
+        reference = Path(reference)
+    else:
+        log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
+        reference = render_reference(str(scene), params, str(out), reference_spp)
+        _check_reference(reference, size)
+    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress)
+    paths = write_report(records, out, scene=str(scene), reference=str(reference),
+                         title=f"Sampler comparison: {scene.name}")
+    return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
+                         cluster_renders=cluster_renders)
 
 
-def write_report(records: Sequence[RenderRecord], out_dir: str | os.PathLike, *, scene: str,
-                 reference: str, title: str | None = None) -> dict[str, Path]:
-    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``."""
-    from pointillist.imaging.io import atomic_write
+def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
+    """``(width, height)`` the scene renders (loads it once: bad scenes fail before any render)."""
+    import pointillist
 
-    out = Path(out_dir)
-    paths = {"csv": out / "results.csv", "md": out / "results.md",
-             "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png"}
-    def write_csv(tmp: str) -> None:
-        with open(tmp, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
-            writer.writeheader()
-            for record in records:
-                row = record.as_dict()
-                row["exr"] = f"renders/{record.exr}"
-                writer.writerow(row)
+    pointillist.setup()
+    from pointillist.scene import load_scene, scene_info
 
-    atomic_write(paths["csv"], write_csv)
-
-    rows = summarise(records)
-    fitted = slopes(rows)
-    lines = [f"# {title or 'Sampler comparison'}", "",
-             f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
-             "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
-             "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
-             "| method | setting | spp | seeds | time (s) | compile (s) | RMSE | relMSE | FLIP |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        lines.append(f"| {r['method']} | {setting_label(r['method'], r['value'])} | {r['spp']:.4g} | {r['seeds']} "
-                     f"| {r['time']:.3f} ± {r['time_std']:.3f} "
-                     f"| {r['compile']:.3f} | {r['rmse']:.5f} ± {r['rmse_std']:.5f} "
-                     f"| {r['relmse']:.3e} | {r['flip']:.4f} |")
-    lines += ["", "spp: samples per pixel taken (an adaptive method's mean over the pixels).", "",
-              "## Fitted log-log slopes (least squares over the sweep)", "",
-              "| method | MSE vs spp | MSE vs time |", "|---|---:|---:|"]
-    for method, s in fitted.items():
-        if _sweeps_spp(method):
-            lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {s['mse_vs_time']:.2f} |")
-        else:
-            lines.append(f"| {method} | – | – |")
-    if not all(_sweeps_spp(method) for method in fitted):
-        lines += ["", "–: the method sweeps another parameter than spp; a fit over that sweep is not "
-                  "a convergence rate."]
-    lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", "",
-              "| budget (s) | ranking (MSE) |", "|---:|---|"]
-    for budget, ranked in equal_time_ranking(rows):
-        text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
-        lines.append(f"| {budget:.3f} | {text} |")
-    anchors = [r for r in rows if r["method"] == rows[0]["method"]] if rows else []
-    lines += ["", "## Equal-error ranking (fastest render reaching each RMSE)", "",
-              f"Budgets: the RMSE of each {anchors[0]['method'] if anchors else ''} point; times relative to "
-              "that point's.", "",
-              "| RMSE budget (from) | ranking (time) |", "|---|---|"]
-    for anchor, (budget, ranked) in zip(anchors, equal_error_ranking(rows, [a["rmse"] for a in anchors])):
-        text = ", ".join(f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s, {t / anchor['time']:.2f}x)"
-                         if anchor["time"] > 0 else f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s)"
-                         for i, (m, v, t) in enumerate(ranked))
-        lines.append(f"| {budget:.5f} ({anchor['method']} {setting_label(anchor['method'], anchor['value'])}, "
-                     f"{anchor['time']:.3f} s) | {text} |")
-    atomic_write(paths["md"], lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-
-    _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
-    _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])
-    return paths
+    info = scene_info(load_scene(scene, params))
+    return info["width"], info["height"]
 
 
-def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
-    from pointillist.imaging.io import atomic_write
+def _check_reference(reference: Path, size: tuple[int, int]) -> None:
+    """The reference must have the render size ``(width, height)``."""
+    from pointillist.imaging.io import read_exr
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=110)
-    xs_all, ys_all = [], []
-    for method in dict.fromkeys(r["method"] for r in rows):
-        spp_sweep = _sweeps_spp(method)
-        mine = [r for r in rows if r["method"] == method]  # another parameter: in sweep order
-        if spp_sweep:
-            mine.sort(key=lambda r: r[x_name])
-        x = np.array([r[x_name] for r in mine])
-        y = np.array([r["mse"] for r in mine])
-        err = np.array([2 * r["rmse"] * r["rmse_std"] for r in mine])  # std of MSE, first order
-        ok = (x > 0) & (y > 0)
-        xs_all += list(x[ok])
-        ys_all += list(y[ok])
-        label = f"{method} (slope {fitted[method][slope_name]:.2f})" if spp_sweep else \
-            f"{method} ({METHODS[method].parameter} labelled)"
-        ax.errorbar(x[ok], y[ok], yerr=err[ok], marker="o", capsize=2, label=label)
-        if not spp_sweep:  # a threshold sweep: say which point is which
-            for xi, yi, r in zip(x[ok], y[ok], [r for r, good in zip(mine, ok) if good]):
-                ax.annotate(f"{r['value']:g}", (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7)
-    if xs_all:
-        x0, y0 = min(xs_all), max(ys_all)
-        x1 = max(xs_all)
-        for slope, style in ((-1, ":"), (-1.5, "--"), (-2, "-.")):
-            ax.plot([x0, x1], [y0, y0 * (x1 / x0) ** slope], style, color="grey", linewidth=1,
-                    label=f"slope {slope:g}")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(x_label)
-    ax.set_ylabel("MSE against the reference")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
     try:
-        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    finally:
-        plt.close(fig)
+        image = read_exr(reference).image
+    except ValueError as error:
+        raise UsageError(f"--reference: {error}") from None
+    if image.shape[:2] != (size[1], size[0]):
+        raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
+                         f"renders {size[0]}x{size[1]}")

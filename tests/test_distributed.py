@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pointillist.distributed import (RenderTask, ResultCache, Tile, assemble_tiles, parse_tiles, render_task,
-                                     render_tiled, run_tasks, task_key, tile_grid, tile_seed)
+from pointillist.distributed import ResultCache, run_tasks, task_key
+from pointillist.tiles import (RenderTask, Tile, assemble_tiles, parse_tiles, render_task, render_tiled, tile_grid,
+                               tile_seed)
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = str(ROOT / "scenes" / "default.xml")

@@ -14,7 +14,7 @@ RNG = np.random.default_rng(8)
 
 @pytest.fixture(scope="module")
 def project(mi):
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     def run(volume, **kwargs):
         image, integrator = project_volume(volume, **kwargs)
@@ -89,7 +89,7 @@ def _scipy_mip(volume, spacing, azimuth, elevation, size):
     """Reference: scipy map_coordinates (order 1, clamped) at a fine step along every ray."""
     from scipy.ndimage import map_coordinates
 
-    from pointillist.commands.mip import view_axes, view_frame
+    from pointillist.mip import view_axes, view_frame
 
     vol = Volume(volume, spacing)
     right, up, forward = view_axes(None, azimuth, elevation)
@@ -134,7 +134,7 @@ def test_bright_voxel_lands_on_its_pixel_in_named_views(project, view, pixel):
 
 @pytest.mark.parametrize("azimuth,elevation", [(0.0, 0.0), (37.0, 25.0), (200.0, -60.0), (90.0, 89.0)])
 def test_bright_voxel_projects_where_the_camera_says(project, azimuth, elevation):
-    from pointillist.commands.mip import view_axes, view_frame
+    from pointillist.mip import view_axes, view_frame
 
     vol = np.zeros((9, 9, 9), np.float32)
     vol[6, 2, 5] = 1.0
@@ -327,7 +327,7 @@ def test_scene_file_renders_and_matches_project(mi):
 
 def test_surfaces_and_emitters_are_not_traced(mi):
     vol = _blob((6, 6, 6))
-    from pointillist.commands.mip import _sensor_dict, view_axes, view_frame
+    from pointillist.mip import _sensor_dict, view_axes, view_frame
 
     axes = view_axes("axial")
     size, hw, hh = view_frame((6, 6, 6), axes, size=(16, 16))

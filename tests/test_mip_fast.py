@@ -35,7 +35,7 @@ def _pair(mi, volume, *, spacing=(1.0, 1.0, 1.0), **props):
 
 
 def _project_both(mi, volume, props, spacing=(1.0, 1.0, 1.0), **view):
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     fast, plain = _pair(mi, volume, spacing=spacing, **props)
     a, _ = project_volume(Volume(volume, spacing), integrator=fast, **view)
@@ -84,7 +84,7 @@ def test_trilinear_columns_only_where_samples_hit_voxel_centres(mi, name, mode):
 
 def test_trilinear_native_columns_equal_numpy_max_exactly(mi):
     vol = VOLUMES["pow2_int16"]
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     for view, axis in (("axial", 0), ("coronal", 1), ("sagittal", 2)):
         image, integrator = project_volume(vol, view=view, native=True, interpolation="trilinear")
@@ -151,7 +151,7 @@ def test_views_that_are_not_axis_aligned_columns_fall_back_to_the_march(mi):
     vol = VOLUMES["phantom_int16"]
     fast, plain = _pair(mi, vol, interpolation="nearest", skip_bricks=False)
     fast.skip_bricks = False
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     a, _ = project_volume(vol, integrator=fast, view=None, azimuth=30.0, elevation=0.0, size=(16, 16))
     assert fast.last_path == "march"
@@ -169,7 +169,7 @@ def test_views_that_are_not_axis_aligned_columns_fall_back_to_the_march(mi):
 
 
 def test_render_with_several_samples_per_pixel_uses_the_columns(mi):
-    from pointillist.commands.mip import _sensor_dict, view_axes, view_frame
+    from pointillist.mip import _sensor_dict, view_axes, view_frame
 
     vol = VOLUMES["odd_int16"]
     axes = view_axes("coronal")
@@ -200,7 +200,7 @@ BRICK_VOLUMES = {
 @pytest.mark.parametrize("mode", ["mip", "minip"])
 @pytest.mark.parametrize("interpolation", ["nearest", "trilinear"])
 def test_brick_skipping_equals_the_march_bit_for_bit(mi, name, mode, interpolation):
-    from pointillist.commands.mip import project_volume
+    from pointillist.mip import project_volume
 
     vol = BRICK_VOLUMES[name]
     props = {"mode": mode, "interpolation": interpolation, "background": -5.0, "fast_axis": False}

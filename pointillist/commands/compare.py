@@ -11,13 +11,13 @@ kept: running the same command again resumes an interrupted sweep.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from pointillist.commands._types import positive_int
-from pointillist.errors import UsageError
 
 NAME = "compare"
 HELP = "compare samplers: error vs time and spp against a reference"
+
+__all__ = ["NAME", "HELP", "add_arguments", "run", "spp_list"]
 
 
 def spp_list(text: str) -> list[int]:
@@ -33,8 +33,9 @@ def spp_list(text: str) -> list[int]:
     return sorted(set(values))
 
 
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP
+    from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP  # (cheap: no Mitsuba, no Dask)
 
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
@@ -65,84 +66,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a scene parameter ($KEY in the XML); repeatable")
 
 
+
 def run(args: argparse.Namespace) -> int:
-    from pointillist.compare import METHODS, Task, render_reference, resolve_methods, run_sweep, write_report
-    from pointillist.scene import check_sample_count, parse_defines
+    from pointillist.compare import compare_scene
+    from pointillist.scene import parse_defines
 
-    params = parse_defines(args.defines)
-    methods = resolve_methods(args.samplers)
-    scene = Path(args.scene)
-    if not scene.is_file():
-        raise UsageError(f"scene: no such file: {scene}")
-    out = Path(args.out) if args.out else Path("out") / "compare" / scene.stem
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out: {out} exists and is not a folder")
-    if args.reference and not Path(args.reference).is_file():
-        raise UsageError(f"--reference: no such file: {args.reference}")
-
-    tasks = []
-    for method in methods:
-        values = args.spp if method.parameter == "spp" else list(method.values)
-        if not values:
-            raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
-        tasks += [Task(method.name, v, seed) for v in values for seed in range(args.seeds)]
-    size = _scene_size(scene, params)
-    for spp in [t.value for t in tasks if METHODS[t.method].parameter == "spp"] + (
-            [] if args.reference else [args.reference_spp]):
-        check_sample_count(*size, int(spp))  # before any render starts (and its progress bar)
-    if args.reference:
-        _check_reference(Path(args.reference), size)
-    out.mkdir(parents=True, exist_ok=True)
-
-    if args.workers or args.scheduler:
-        from pointillist.distributed import open_client, prerender_sweep
-
-        with open_client(args.workers, args.scheduler) as client:
-            new = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
-                                  reference_spp=None if args.reference else args.reference_spp,
-                                  progress=not args.no_progress)
-        print(f"{new} renders done on the cluster", flush=True)
-
-    if args.reference:
-        reference = Path(args.reference)
-    else:
-        print(f"reference: {args.reference_spp} spp with Mitsuba's stratified sampler "
-              f"(cached in {out / 'reference'})", flush=True)
-        reference = render_reference(str(scene), params, str(out), args.reference_spp)
-        _check_reference(reference, size)
-
-    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
-                        progress=not args.no_progress)
-    paths = write_report(records, out, scene=str(scene), reference=str(reference),
-                         title=f"Sampler comparison: {scene.name}")
-    done = sum(1 for r in records if not r.cached)
-    print(f"{len(records)} renders ({done} new, {len(records) - done} reused) in {out}")
+    result = compare_scene(args.scene, methods=args.samplers, spp=args.spp, seeds=args.seeds,
+                           reference_spp=args.reference_spp, reference=args.reference, out_dir=args.out,
+                           params=parse_defines(args.defines), workers=args.workers, scheduler=args.scheduler,
+                           progress=not args.no_progress, log=lambda line: print(line, flush=True))
+    records, paths = result.records, result.paths
+    print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
     print(f"wrote {paths['csv']}, {paths['md']}, {paths['time_plot']}, {paths['spp_plot']}")
     return 0
-
-
-def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
-    """``(width, height)`` the scene renders (loads it once: bad scenes fail before any render)."""
-    import pointillist
-
-    pointillist.setup()
-    from pointillist.scene import load_scene, scene_info
-
-    info = scene_info(load_scene(scene, params))
-    return info["width"], info["height"]
-
-
-def _check_reference(reference: Path, size: tuple[int, int]) -> None:
-    """The reference must have the render size ``(width, height)``."""
-    from pointillist.imaging.io import read_exr
-
-    try:
-        image = read_exr(reference).image
-    except ValueError as error:
-        raise UsageError(f"--reference: {error}") from None
-    if image.shape[:2] != (size[1], size[0]):
-        raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
-                         f"renders {size[0]}x{size[1]}")
-
-
-__all__ = ["NAME", "HELP", "add_arguments", "run", "spp_list"]

@@ -1,0 +1,346 @@
+"""Maximum (minimum, average) intensity projections of volumes: views, framing, frames.
+
+* :func:`view_axes` gives the camera's ``(right, up, forward)`` for a named view
+  (:data:`NAMED_VIEWS`) or an azimuth/elevation; :func:`view_frame` fits the
+  volume's box into the image (or, ``native``, one pixel per voxel column).
+* :func:`project_volume` renders one raw projection with the ``mip`` integrator
+  (:mod:`pointillist.plugins.integrators.mip`), reusing its texture across views.
+* :func:`project_frames` renders turntable frames as Dask tasks
+  (:func:`mip_frame_task`, :func:`pointillist.distributed.run_tasks`).
+* :func:`render_mip` is ``pointillist mip``: load a volume, project every view,
+  window and colour-map it (:mod:`pointillist.imaging.window`) and write PNG/EXR.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
+from pointillist.errors import UsageError
+
+__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "project_volume", "mip_frame_task", "project_frames",
+           "MipResult", "render_mip"]
+
+
+#: Named views: (right, up, forward) unit vectors in the volume's (x, y, z) axes.
+NAMED_VIEWS = {
+    "axial": ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "coronal": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "sagittal": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (-1.0, 0.0, 0.0)),
+}
+
+def view_axes(view: str | None = None, azimuth: float = 0.0, elevation: float = 0.0):
+    """Camera ``(right, up, forward)`` unit vectors (numpy) for a named view or azimuth/elevation.
+
+    forward = (sin A cos E, cos A cos E, -sin E); right = forward x z normalised
+    (``(cos A, -sin A, 0)`` when looking straight along z); up = right x forward.
+    Directions within 1e-12 of an axis are snapped to it.
+    """
+    if view is not None:
+        if view not in NAMED_VIEWS:
+            raise ValueError(f"view: expected one of {', '.join(NAMED_VIEWS)}, got {view!r}")
+        return tuple(np.array(v) for v in NAMED_VIEWS[view])
+    if not (math.isfinite(azimuth) and math.isfinite(elevation)):
+        raise ValueError(f"azimuth/elevation: expected finite degrees, got {azimuth}, {elevation}")
+    a, e = math.radians(azimuth), math.radians(elevation)
+    forward = np.array([math.sin(a) * math.cos(e), math.cos(a) * math.cos(e), -math.sin(e)])
+    forward[np.abs(forward) < 1e-12] = 0.0
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-9:
+        right = np.array([math.cos(a), -math.sin(a), 0.0])
+    right /= np.linalg.norm(right)
+    right[np.abs(right) < 1e-12] = 0.0
+    up = np.cross(right, forward)
+    up[np.abs(up) < 1e-12] = 0.0
+    return right, up / np.linalg.norm(up), forward / np.linalg.norm(forward)
+
+def view_frame(extent, axes, *, size=(512, 512), native: bool = False, counts=None, spacing=None):
+    """Image size and the half-width/half-height (world units) of the orthographic view rectangle.
+
+    ``size`` (W, H): the box's projection is fitted inside with square pixels.
+    ``native``: axis-aligned views only; the image has one pixel per voxel column
+    (W, H = voxel counts across the view) and the rectangle is the box's face, so
+    each pixel's ray passes through a voxel column centre.
+    """
+    right, up, forward = axes
+    extent = np.asarray(extent, dtype=np.float64)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * extent / 2
+    half_w = float(np.abs(corners @ right).max())
+    half_h = float(np.abs(corners @ up).max())
+    if native:
+        axis_r, axis_u = np.flatnonzero(np.abs(right) == 1.0), np.flatnonzero(np.abs(up) == 1.0)
+        if len(axis_r) != 1 or len(axis_u) != 1 or np.count_nonzero(forward) != 1:
+            raise ValueError("native-size: needs an axis-aligned view (axial, coronal, sagittal or "
+                             "azimuth/elevation multiples of 90 degrees)")
+        width, height = int(counts[axis_r[0]]), int(counts[axis_u[0]])
+        return (width, height), half_w, half_h
+    width, height = size
+    per_pixel = max(2 * half_w / width, 2 * half_h / height)
+    return (width, height), width * per_pixel / 2, height * per_pixel / 2
+
+def _sensor_dict(mi, extent, axes, image_size, half_w, half_h, perspective: float | None):
+    right, up, forward = axes
+    width, height = image_size
+    radius = float(np.linalg.norm(extent)) / 2
+    if perspective is None:
+        # camera distance and near clip are powers of two: for axis-aligned views of boxes with
+        # power-of-two sides the ray parameters and sample positions are then exact floats, so
+        # half-voxel steps land exactly on voxel centres (see the mip integrator's fast path)
+        distance = 2.0 ** math.ceil(math.log2(radius * 2 + 1.0))
+        to_world = (mi.ScalarTransform4f().look_at(origin=(-forward * distance).tolist(), target=[0, 0, 0],
+                                                    up=up.tolist())
+                    @ mi.ScalarTransform4f().scale([half_w, half_h * width / height, 1.0]))
+        sensor = {"type": "orthographic", "to_world": to_world, "near_clip": distance / 1024.0,
+                  "far_clip": 4 * distance}
+    else:
+        distance = radius / math.sin(math.radians(perspective) / 2)
+        to_world = mi.ScalarTransform4f().look_at(origin=(-forward * distance).tolist(), target=[0, 0, 0],
+                                                  up=up.tolist())
+        sensor = {"type": "perspective", "fov": perspective, "fov_axis": "smaller", "to_world": to_world,
+                  "near_clip": 1e-3 * distance, "far_clip": 4 * distance}
+    sensor["film"] = {"type": "hdrfilm", "width": int(width), "height": int(height),
+                      "rfilter": {"type": "box"}, "pixel_format": "rgb"}
+    sensor["sampler"] = {"type": "independent", "sample_count": 1}
+    return sensor
+
+def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, elevation: float = 0.0,
+                   size=(512, 512), native: bool = False, mode: str = "mip",
+                   interpolation: str = "trilinear", step: float = 0.5, perspective: float | None = None,
+                   precision: str = "auto", background: float | None = None, integrator=None):
+    """Render the raw projection ``(H, W)`` (numpy float32) of a volume from a view.
+
+    ``volume`` is a :class:`pointillist.imaging.volumes.Volume` or a (Z, Y, X) array.
+    Pass ``integrator`` (a ``mip`` integrator holding the volume) to reuse its
+    texture across views. Returns ``(image, integrator)``.
+    """
+    import pointillist
+
+    if integrator is None:
+        mi = pointillist.setup()
+    else:  # already set up (a mip integrator exists): skip re-registering the plugins (~10 ms)
+        import mitsuba as mi
+    from pointillist.imaging.volumes import Volume
+
+    if not isinstance(volume, Volume):
+        volume = Volume(np.asarray(volume))
+    if integrator is None:
+        props = {"type": "mip", "mode": mode, "interpolation": interpolation, "step": float(step),
+                 "precision": precision}
+        if background is not None:
+            props["background"] = float(background)
+        integrator = mi.load_dict(props)
+        integrator.set_volume(volume)
+    axes = view_axes(view, azimuth, elevation)
+    image_size, half_w, half_h = view_frame(volume.extent, axes, size=size, native=native,
+                                            counts=volume.shape_xyz)
+    sensor = mi.load_dict(_sensor_dict(mi, np.asarray(volume.extent), axes, image_size, half_w, half_h,
+                                       perspective))
+    scene = mi.load_dict({"type": "scene"})
+    image = integrator.project(scene, sensor)
+    return np.array(image), integrator
+
+
+# --------------------------------------------------------------------------- turntable frames as tasks
+# --------------------------------------------------------------------------- `pointillist mip --turntable`
+_VOLUMES: OrderedDict = OrderedDict()
+
+def mip_frame_task(spec: dict) -> dict:
+    """Project one frame of a volume in this process (a worker); picklable.
+
+    ``spec``: ``volume`` (path), ``spacing`` (or None), ``view`` (keyword
+    arguments of the view: ``view``/``azimuth``/``elevation``) and ``options``
+    (the other keyword arguments of
+    :func:`project_volume`). The volume and its
+    texture stay loaded per process for the next frame. Returns
+    ``{"image": (H, W) float32, "seconds": projection time here,
+    "texture": the integrator's texture_info(), "worker": host:pid}``.
+    """
+    setup_process()
+    from pointillist.imaging.volumes import load_volume
+
+    path = str(Path(spec["volume"]).resolve())
+    try:
+        stamp = os.stat(path).st_mtime_ns
+    except OSError:
+        raise UsageError(f"volume: no such file or folder: {path}") from None
+    spacing = tuple(spec["spacing"]) if spec.get("spacing") else None
+    key = (path, stamp, spacing, tuple(sorted(spec["options"].items())))
+    entry = _VOLUMES.get(key)
+    if entry is None:
+        _VOLUMES.clear()  # one volume per process: they can be large
+        entry = _VOLUMES[key] = {"volume": load_volume(path, spacing=list(spacing) if spacing else None),
+                                 "integrator": None}
+    start = time.perf_counter()
+    image, entry["integrator"] = project_volume(entry["volume"], **spec["view"], **spec["options"],
+                                                integrator=entry["integrator"])
+    return {"image": np.asarray(image, dtype=np.float32), "seconds": time.perf_counter() - start,
+            "texture": entry["integrator"].texture_info(), "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+def project_frames(volume: str | os.PathLike, views: Sequence[dict], options: dict, *, spacing=None,
+                   workers: int | None = None, scheduler: str | None = None, retries: int = DEFAULT_RETRIES,
+                   progress: bool = True) -> list[dict]:
+    """Project every view of a volume (turntable frames) as tasks; results in view order.
+
+    Runs on a local cluster of ``workers`` processes or the cluster at
+    ``scheduler`` (each worker loads the volume once, by the same path). See
+    :func:`mip_frame_task` for what each result holds.
+    """
+    specs = [{"volume": str(Path(volume).resolve()), "spacing": list(spacing) if spacing else None,
+              "view": dict(view), "options": dict(options)} for view in views]
+    keys = [json_key(s) for s in specs]
+    with open_client(workers, scheduler) as client:
+        return run_tasks(mip_frame_task, specs, client=client, keys=keys, retries=retries, progress=progress,
+                         desc="mip frames")
+
+
+# --------------------------------------------------------------------------- `pointillist mip`
+@dataclass
+class MipResult:
+    """What :func:`render_mip` did: the files written, the volume and texture, the times."""
+
+    outputs: list[Path]
+    gif: Path | None
+    volume: Any
+    texture: dict[str, Any]
+    window: tuple[float, float]
+    load_seconds: float
+    project_seconds: float
+    notes: list[str] = field(default_factory=list)
+
+
+def _frame_views(view: str | None, azimuth: float | None, elevation: float | None,
+                 turntable: int | None) -> list[dict]:
+    """The views to project: one named or azimuth/elevation view, or ``turntable`` frames about z."""
+    if azimuth is None and elevation is None:
+        views = [dict(view=view or "axial")]
+    else:
+        views = [dict(view=None, azimuth=azimuth or 0.0, elevation=elevation or 0.0)]
+    if not turntable:
+        return views
+    base = views[0]
+    if base["view"] is not None:
+        _, _, forward = view_axes(base["view"])
+        base = dict(view=None, azimuth=math.degrees(math.atan2(forward[0], forward[1])),
+                    elevation=-math.degrees(math.asin(forward[2])))
+    return [dict(view=None, azimuth=base["azimuth"] + 360.0 * k / turntable, elevation=base["elevation"])
+            for k in range(turntable)]
+
+
+def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, view: str | None = None,
+               azimuth: float | None = None, elevation: float | None = None, size=(512, 512),
+               native: bool = False, mode: str = "mip", interpolation: str = "trilinear",
+               window: str | None = None, colormap: str = "grey", step: float = 0.5,
+               spacing: Sequence[float] | None = None, perspective: float | None = None,
+               background: float | None = None, precision: str = "auto", turntable: int | None = None,
+               workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> MipResult:
+    """Project a volume file and write the image(s): ``pointillist mip``.
+
+    ``output`` is a ``.png`` (windowed and colour-mapped; ``window`` is ``"L,W"``
+    or a preset of :data:`pointillist.imaging.window.WINDOW_PRESETS`, default the
+    first frame's value range) or an ``.exr`` (raw projected values, one channel).
+    ``turntable`` N writes N frames ``OUT_000.png ...`` turning about z (and
+    ``OUT.gif`` when imageio is installed); ``workers``/``scheduler`` project the
+    frames as Dask tasks. Other arguments as :func:`project_volume`.
+
+    Raises
+    ------
+    UsageError
+        For an output name or option combination that cannot work, before any work.
+    """
+    out = Path(output)
+    suffix = out.suffix.lower()
+    if suffix not in (".png", ".exr"):
+        raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
+    if not out.parent.is_dir():
+        raise UsageError(f"--output: folder {out.parent} does not exist")
+    if native and perspective:
+        raise UsageError("--native-size needs an orthographic view (drop --perspective)")
+    if perspective is not None and perspective >= 180:
+        raise UsageError(f"--perspective: expected a field of view below 180 degrees, got {perspective}")
+    if turntable and native:
+        raise UsageError("--turntable needs --size (oblique frames have no native size)")
+    import pointillist
+
+    pointillist.setup()
+    from tqdm import tqdm
+
+    from pointillist.imaging.io import check_output_path
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.imaging.window import colormap_lut, parse_window
+
+    display = parse_window(window) if window else None
+    lut = colormap_lut(colormap)
+    start = time.perf_counter()
+    volume = load_volume(volume_path, spacing=list(spacing) if spacing else None)
+    load_s = time.perf_counter() - start
+    views = _frame_views(view, azimuth, elevation, turntable)
+    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
+             else [out])
+    for name in names:
+        check_output_path(name, [volume_path], name="--output")
+    options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
+                   perspective=perspective, precision=precision, background=background)
+    integrator = None
+    frames = []
+    project_s = 0.0
+    remote = None
+    if workers or scheduler:  # every frame a task
+        remote = project_frames(volume_path, views, options, spacing=spacing, workers=workers, scheduler=scheduler)
+        project_s = sum(r["seconds"] for r in remote)
+    for k, (frame_view, name) in enumerate(tqdm(list(zip(views, names)), desc="mip", unit="frame",
+                                                disable=len(names) == 1 or not progress)):
+        if remote is not None:
+            image = remote[k]["image"]
+        else:
+            t = time.perf_counter()
+            image, integrator = project_volume(volume, **frame_view, **options, integrator=integrator)
+            project_s += time.perf_counter() - t
+        if display is None:  # one window for all frames: the first frame's value range
+            finite = image[np.isfinite(image)]
+            lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+            display = ((lo + hi) / 2, hi - lo if hi > lo else 1.0)
+        frames.append(_write_frame(name, image, volume, volume_path, display, lut, frame_view, mode=mode,
+                                   interpolation=interpolation, step=step))
+    gif, notes = None, []
+    if turntable and suffix == ".png":
+        try:
+            import imageio.v2 as imageio
+        except ImportError:
+            notes.append("imageio not installed: no GIF written")
+        else:
+            gif = out.with_suffix(".gif")
+            check_output_path(gif, [volume_path], name="--output")
+            from pointillist.imaging.io import atomic_write
+
+            atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
+    texture = integrator.texture_info() if remote is None else remote[0]["texture"]
+    return MipResult(outputs=names, gif=gif, volume=volume, texture=texture, window=display,
+                     load_seconds=load_s, project_seconds=project_s, notes=notes)
+
+
+def _write_frame(path: Path, image: np.ndarray, volume, volume_path, window, lut, view, *, mode: str,
+                 interpolation: str, step: float) -> np.ndarray | None:
+    """Write one frame: raw values to EXR, or windowed display RGB to PNG (returned as 8-bit)."""
+    from pointillist.imaging.io import to_8bit, write_exr, write_png
+
+    if path.suffix.lower() == ".exr":
+        meta = {"mode": mode, "interpolation": interpolation, "step": float(step),
+                "volume": str(volume_path), "spacing": ",".join(f"{s:g}" for s in volume.spacing),
+                "view": view["view"] or f"azimuth={view.get('azimuth', 0):g},elevation={view.get('elevation', 0):g}"}
+        write_exr(path, image.astype(np.float32), meta, inputs=[volume_path])
+        return None
+    from pointillist.imaging.window import window_image
+
+    pixels = window_image(image, *window, lut)
+    write_png(path, pixels, srgb=False, max_value=1.0, inputs=[volume_path])
+    return to_8bit(pixels, srgb=False)

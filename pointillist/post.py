@@ -1,0 +1,203 @@
+"""``pointillist post``: run imaging steps on a render (EXR) or an 8-bit image, in order, and
+write PNG/EXR.
+
+Only the steps asked for run (:mod:`pointillist.steps`). EXR input is linear
+light: a tone-mapping step (``tonemap:...``) turns it into display intensities on
+0..255; when the first step that needs display intensities comes before any tone
+mapping, ``tonemap:clip`` (clip to 0..1, sRGB curve, scale to 255) is applied
+first and said so. PNG/JPEG input is already on 0..255.
+
+Output: ``.png`` writes 8-bit (display values as they are, or an sRGB preview of
+linear values when no step ran that leaves linear light); ``.exr`` writes the
+float values as they are.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pointillist.errors import UsageError
+
+__all__ = ["PostResult", "post_process", "step_list", "histogram_plot"]
+
+
+@dataclass
+class PostResult:
+    """What :func:`post_process` did: the output, the steps run (as text), warnings to show
+    (``notes``), per-step statistics (``reports``: ``(step, summary, extra figures)``, with
+    ``report=True``) and the histogram plot written, if any."""
+
+    output: Path
+    done: list[str]
+    notes: list[str] = field(default_factory=list)
+    reports: list[tuple[str, str, dict[str, float]]] = field(default_factory=list)
+    plot: Path | None = None
+
+
+def step_list() -> list[str]:
+    """One line per known step: ``name (parameters): help``."""
+    from pointillist.steps import steps
+
+    return [f"{name}{f' ({chr(44).join(spec.params)})' if spec.params else ''}: {spec.help}"
+            for name, spec in steps().items()]
+
+
+def _stats(image) -> str:
+    import numpy as np
+
+    values = np.asarray(image)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return "no finite values"
+    return f"min {finite.min():.4g}, mean {finite.mean():.4g}, max {finite.max():.4g}"
+
+
+
+def _run_step(spec, image, kwargs, notes):
+    """Run one step; bad arguments become a one-line UsageError, warnings are added to ``notes``
+    (printed, one line each, only once every step has succeeded: an error stays one line)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result = spec.function(image, **kwargs)
+        except (TypeError, ValueError) as error:
+            raise UsageError(f"--steps: {spec.name}: {error}") from None
+    notes.extend(f"post: warning: {warning.message}" for warning in caught)
+    return result
+
+
+def post_process(source: str | os.PathLike | None, output: str | os.PathLike | None, *, steps: str = "",
+                 step: Sequence[str] = (), dither: str | None = None, report: bool = False, plot: bool = False,
+                 plot_file: str | os.PathLike | None = None) -> PostResult:
+    """Read ``source``, run ``steps`` (``"a:k=v;b"``), then each of ``step``, then ``dither``
+    (``METHOD[:ARGS]``), and write ``output`` (``.png`` or ``.exr``); with ``plot`` (or
+    ``plot_file``), a before/after histogram plot too.
+
+    Raises
+    ------
+    UsageError
+        For a missing input, an output that is not .png/.exr, is the input or a folder,
+        and any step that refuses its arguments (one line naming the step).
+    """
+    from pointillist.steps import parse_steps
+    from pointillist.steps import steps as known_steps
+
+    if source is None:
+        raise UsageError("input: expected an input image (EXR, PNG, JPEG or TIFF)")
+    if output is None:
+        raise UsageError("--output: expected an output .png or .exr file name")
+    text = ";".join([steps, *step] + ([f"dither:{dither.replace(':', ',', 1)}"] if dither else []))
+    pipeline = parse_steps(text)
+    source, out = Path(source), Path(output)
+    if out.suffix.lower() not in (".png", ".exr"):
+        raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
+    if not source.is_file():
+        raise UsageError(f"input: no such file: {source}")
+    if out.exists() and out.resolve() == source.resolve():
+        raise UsageError(f"--output: refusing to overwrite the input {source}")
+    if not out.parent.is_dir():
+        raise UsageError(f"--output: folder {out.parent} does not exist")
+    if out.is_dir():
+        raise UsageError(f"--output: {out} is a folder, expected a file name")
+    plot_path = None
+    if plot or plot_file:
+        plot_path = Path(plot_file) if plot_file else out.with_name(out.stem + "_histogram.png")
+        if plot_path.suffix.lower() != ".png":
+            raise UsageError(f"--plot-file: expected a .png file name, got {plot_path}")
+        if plot_path.resolve() == out.resolve():
+            raise UsageError(f"--plot-file: {plot_path} is the --output file")
+        from pointillist.imaging.io import check_output_path
+
+        try:
+            check_output_path(plot_path, [source], name="--plot")
+        except ValueError as error:
+            raise UsageError(str(error)) from None
+
+    from pointillist.imaging import as_tensor
+    from pointillist.imaging.io import read_image, write_exr, write_png
+
+    try:
+        image, metadata, _layers = read_image(source)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]
+    linear = source.suffix.lower() == ".exr"
+    before = image
+    current = as_tensor(image)
+    known = known_steps()
+    reports: list[tuple[str, str, dict[str, float]]] = []
+    done = []
+    notes: list[str] = []
+    for spec, kwargs in pipeline:
+        if linear and not spec.linear:
+            current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
+            linear = False
+            done.append("tonemap:clip")
+            notes.append("post: input is linear light; applied tonemap:clip first")
+        elif spec.linear and not linear:
+            raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
+                             "but the image is already display-referred")
+        previous = current
+        current = _run_step(spec, current, kwargs, notes)
+        linear = False if spec.linear else linear
+        done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
+        if report:
+            reports.append((spec.name, _stats(current), spec.report(previous, current) if spec.report else {}))
+    if out.suffix.lower() == ".exr":
+        write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=[source])
+    elif linear:
+        write_png(out, current, inputs=[source])
+    else:
+        write_png(out, current, srgb=False, max_value=255.0, inputs=[source])
+    if plot_path is not None:
+        histogram_plot(plot_path, before, current, linear_before=source.suffix.lower() == ".exr",
+                       title=f"{source.name}: {'; '.join(done)}", inputs=[source])
+    return PostResult(output=out, done=done, notes=notes, reports=reports, plot=plot_path)
+
+
+def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str, inputs=()) -> None:
+    """Write a PNG with the histograms of ``before`` and ``after`` side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from pointillist.imaging.io import atomic_write, check_output_path
+
+    path = check_output_path(path, inputs, name="--plot")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    for ax, data, label in ((axes[0], before, "before"), (axes[1], after, "after")):
+        values = np.asarray(data, dtype=np.float64)
+        values = values.reshape(values.shape[0], values.shape[1], -1)
+        finite = values[np.isfinite(values)]
+        linear = label == "before" and linear_before
+        # Linear renders: a few very bright pixels would squash the plot; show up to the 99.9th percentile.
+        high = float(np.percentile(finite, 99.9)) if linear and finite.size else None
+        low = float(finite.min()) if finite.size else 0.0
+        span = (low, high if high is not None and high > low else low + 1.0) if linear else (
+            (min(low, 0.0), max(float(finite.max()) if finite.size else 255.0, 255.0)))
+        colours = ("tab:red", "tab:green", "tab:blue") if values.shape[2] == 3 else ("0.3",) * values.shape[2]
+        names = ("R", "G", "B") if values.shape[2] == 3 else ("grey",) * values.shape[2]
+        for c in range(values.shape[2]):
+            channel = values[..., c]
+            channel = channel[np.isfinite(channel)]
+            ax.hist(channel, bins=256, range=span, histtype="step", color=colours[c], label=names[c])
+        if values.shape[2] == 3:
+            ax.legend(fontsize=7)
+        ax.set_title(label + (" (linear, to the 99.9th percentile)" if linear else " (0..255)"))
+        ax.set_xlabel("value")
+        ax.set_ylabel("pixels")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    finally:
+        plt.close(fig)
+
