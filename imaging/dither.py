@@ -67,7 +67,8 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, Int32, UInt8, UInt32
 
-from pointillist.imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import (TensorXf, as_tensor, check_shape, divmod_u32, eager_if_shared, is_uint8,
+                                        opaque_scalar)
 from pointillist.imaging.filters import threshold
 
 __all__ = [
@@ -456,8 +457,8 @@ def _diffuse_core(values: Float, height: int, width: int, channels: int,
 def _pixels(image: Any) -> tuple[UInt8 | Float, tuple[int, ...]]:
     """The flat pixel values and shape of ``image``: a uint8 numpy image as its bytes (``UInt8``,
     shared, no float32 copy), anything else through :func:`as_tensor` (``Float``)."""
-    if _is_uint8(image):
-        _check_shape(image.shape, "image", None, False)
+    if is_uint8(image):
+        check_shape(image.shape, "image", None, False)
         return UInt8(np.ascontiguousarray(image).reshape(-1)), tuple(image.shape)
     tensor = as_tensor(image)
     return tensor.array, tuple(tensor.shape)
@@ -658,87 +659,29 @@ def _ordered_values(values: Float, thresholds: Float, cells: int, levels: int) -
     """
     # Written so that every step is exact for integer intensities (products < 2^24, one
     # correctly rounded division whose quotient cannot round across an integer).
-    gaps = _constant(Float, float(levels - 1))
-    full = _constant(Float, 255.0)
+    gaps = opaque_scalar(Float, float(levels - 1))
+    full = opaque_scalar(Float, 255.0)
     scaled = values * gaps
     base = dr.minimum(dr.floor(scaled / full), gaps - 1.0)
     rest = scaled - base * full
-    n2 = _constant(Float, float(cells))
+    n2 = opaque_scalar(Float, float(cells))
     p = dr.minimum(dr.floor(rest * (n2 + 1.0) / full), n2)
     up = dr.select(p >= thresholds, 1.0, 0.0)
     return (base + up) * full / gaps
 
 
-#: Bounds on the dividend of :func:`_divmod`: below 2^22 one float32 product is exact, below
-#: 2^24 one float32 product and a correction step are (see the error bounds there).
-_FLOAT32_ROUNDED = 1 << 22
-_FLOAT32_EXACT = 1 << 24
-
-_CONSTANTS: dict[tuple[type, Any], Any] = {}
-
-
-def _constant(kind: type, value: Any) -> Any:
-    """An opaque (evaluated) Dr.Jit scalar, cached by ``(kind, value)``.
-
-    ``dr.opaque`` makes a kernel independent of the value (no recompilation per image size), but
-    each call costs a one-element memset launch; a repeated call with the same sizes reuses the
-    evaluated variable instead (Dr.Jit variables are immutable, so sharing them is safe).
-    """
-    key = (kind, value)
-    variable = _CONSTANTS.get(key)
-    if variable is None:
-        if len(_CONSTANTS) >= 512:
-            _CONSTANTS.clear()
-        variable = _CONSTANTS[key] = dr.opaque(kind, value)
-    return variable
-
-
-def _divmod(a: UInt32, divisor: int, bound: int | None = None) -> tuple[UInt32, UInt32]:
-    """``a // divisor, a % divisor`` for a per-call divisor without vector integer division.
-
-    LLVM has no SIMD integer division (it runs lane by lane). A power-of-two divisor is a shift
-    and a mask. Otherwise a reciprocal multiplication (opaque, so the kernel does not depend on
-    the size), chosen by ``bound`` (``a < bound``, known to the caller):
-
-    - ``bound <= 2^22``: q = trunc((a + 1/2) * fl(1/d)) in float32, no correction. The exact
-      (a + 1/2) / d lies at least 1/(2d) from an integer; two roundings (relative 2^-24 each)
-      move it by less than (a + 1/2) 2^-23 / d < 1/(2d), so the truncation is exact.
-    - ``bound <= 2^24``: float32 estimate and one correction step. a is exact in float32 and, for
-      divisor >= 2, the estimate of a / divisor < 2^23 is off by less than 2^23 * 2^-23 = 1.
-    - otherwise float64 and one correction step: exact for every ``a < 2^32``.
-
-    Dr.Jit emits plain IEEE operations here (no fast-math contraction), so the bounds hold; the
-    tests check them exhaustively near the limits.
-    """
-    if divisor == 1:
-        return a, dr.zeros(UInt32, dr.width(a))
-    if divisor & (divisor - 1) == 0:
-        return a >> _constant(UInt32, divisor.bit_length() - 1), a & _constant(UInt32, divisor - 1)
-    d = _constant(UInt32, divisor)
-    if bound is not None and bound <= _FLOAT32_ROUNDED:
-        q = UInt32((Float(a) + _constant(Float, 0.5)) * _constant(Float, float(np.float32(1.0) / np.float32(divisor))))
-        return q, a - q * d
-    if bound is not None and bound <= _FLOAT32_EXACT:
-        q = UInt32(Float(a) * _constant(Float, float(np.float32(1.0) / np.float32(divisor))))
-    else:
-        q = UInt32(Float64(a) * _constant(Float64, 1.0 / divisor))
-    r = Int32(a) - Int32(q * d)
-    q = dr.select(r < 0, q - 1, dr.select(r >= Int32(d), q + 1, q))
-    return q, a - q * d
-
-
 def _coordinates(count: int, width: int, channels: int) -> tuple[UInt32, UInt32]:
     """Row and column of every value of a flat (H, W, C) array of ``count`` values."""
-    pixel = _divmod(dr.arange(UInt32, count), channels, count)[0]
-    return _divmod(pixel, width, -(-count // channels))
+    pixel = divmod_u32(dr.arange(UInt32, count), channels, count)[0]
+    return divmod_u32(pixel, width, -(-count // channels))
 
 
 def _template_index(n: int, y: UInt32, x: UInt32) -> UInt32:
     """Row-major index of the template entry at (y mod n, x mod n) (shifts and masks for 2^k)."""
     if n & (n - 1) == 0:  # powers of two (Bayer, TEMPLATE_4, blue noise): no division
-        mask = _constant(UInt32, n - 1)
-        return ((y & mask) << _constant(UInt32, n.bit_length() - 1)) | (x & mask)
-    return _divmod(y, n, dr.width(y))[1] * _constant(UInt32, n) + _divmod(x, n, dr.width(x))[1]
+        mask = opaque_scalar(UInt32, n - 1)
+        return ((y & mask) << opaque_scalar(UInt32, n.bit_length() - 1)) | (x & mask)
+    return divmod_u32(y, n, dr.width(y))[1] * opaque_scalar(UInt32, n) + divmod_u32(x, n, dr.width(x))[1]
 
 
 def _template_thresholds(template: np.ndarray, y: UInt32, x: UInt32) -> Float:
@@ -806,10 +749,6 @@ def _threshold_table(data: bytes, n: int) -> Float:
     return table
 
 
-def _is_uint8(image: Any) -> bool:
-    return isinstance(image, np.ndarray) and image.dtype == np.uint8
-
-
 def _ordered_1bit(values: Float, template: np.ndarray, y: UInt32, x: UInt32) -> Float:
     """1-bit ordered dithering in one pass: white where I >= the entry's intensity threshold.
 
@@ -819,7 +758,7 @@ def _ordered_1bit(values: Float, template: np.ndarray, y: UInt32, x: UInt32) -> 
     n = template.shape[0]
     table = _threshold_table(template.tobytes(), n)
     up = values >= dr.gather(Float, table, _template_index(n, y, x))
-    return dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0))
+    return dr.select(up, opaque_scalar(Float, 255.0), opaque_scalar(Float, 0.0))
 
 
 @eager_if_shared
@@ -911,20 +850,20 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     n = template.shape[0]
     by, bx = -(-height // n), -(-width // n)
     y, x = _coordinates(dr.width(values), width, channels)
-    c = _divmod(dr.arange(UInt32, dr.width(values)), channels, dr.width(values))[1]
-    sy, ty = _divmod(y, n, height)
-    sx, tx = _divmod(x, n, width)
-    block = (sy * _constant(UInt32, bx) + sx) * _constant(UInt32, channels) + c
+    c = divmod_u32(dr.arange(UInt32, dr.width(values)), channels, dr.width(values))[1]
+    sy, ty = divmod_u32(y, n, height)
+    sx, tx = divmod_u32(x, n, width)
+    block = (sy * opaque_scalar(UInt32, bx) + sx) * opaque_scalar(UInt32, channels) + c
     sums = dr.zeros(Float64, by * bx * channels)
     dr.scatter_add(sums, Float64(values), block)
     # Pixels per block, cut by the right and bottom edges: min(n, H - n sy) min(n, W - n sx).
-    N = _constant(UInt32, n)
-    count = dr.minimum(N, _constant(UInt32, height) - sy * N) * dr.minimum(N, _constant(UInt32, width) - sx * N)
+    N = opaque_scalar(UInt32, n)
+    count = dr.minimum(N, opaque_scalar(UInt32, height) - sy * N) * dr.minimum(N, opaque_scalar(UInt32, width) - sx * N)
     mean = Float(dr.gather(Float64, sums, block) / Float64(count))
     index = ty * N + tx
     if levels == 2:
         up = mean >= dr.gather(Float, _threshold_table(template.tobytes(), n), index)
-        return TensorXf(dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0)), shape)
+        return TensorXf(dr.select(up, opaque_scalar(Float, 255.0), opaque_scalar(Float, 0.0)), shape)
     thresholds = dr.gather(Float, _template_table(template.tobytes(), n), index)
     return TensorXf(_ordered_values(mean, thresholds, n * n, levels), shape)
 
@@ -970,16 +909,16 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf:
     channels = shape[2] if len(shape) == 3 else 1
     out_shape = (height * n, width * n) + ((channels,) if len(shape) == 3 else ())
     count = height * n * width * n * channels
-    pixel, c = _divmod(dr.arange(UInt32, count), channels, count)
-    oy, ox = _divmod(pixel, width * n, -(-count // channels))
-    sy, ty = _divmod(oy, n, height * n)
-    sx, tx = _divmod(ox, n, width * n)
-    source = (sy * _constant(UInt32, width) + sx) * _constant(UInt32, channels) + c
+    pixel, c = divmod_u32(dr.arange(UInt32, count), channels, count)
+    oy, ox = divmod_u32(pixel, width * n, -(-count // channels))
+    sy, ty = divmod_u32(oy, n, height * n)
+    sx, tx = divmod_u32(ox, n, width * n)
+    source = (sy * opaque_scalar(UInt32, width) + sx) * opaque_scalar(UInt32, channels) + c
     # The raw value: the 1-bit rule needs no clipping (see _ordered_1bit), so no pass before.
     intensity = dr.gather(Float, tensor.array, source)
     table = _threshold_table(template.tobytes(), n)
-    up = intensity >= dr.gather(Float, table, ty * _constant(UInt32, n) + tx)
-    return TensorXf(dr.select(up, _constant(Float, 255.0), _constant(Float, 0.0)), out_shape)
+    up = intensity >= dr.gather(Float, table, ty * opaque_scalar(UInt32, n) + tx)
+    return TensorXf(dr.select(up, opaque_scalar(Float, 255.0), opaque_scalar(Float, 0.0)), out_shape)
 
 
 def void_and_cluster(n: int = 64, *, sigma: float = 1.5, seed: int = 0, density: float = 0.1) -> np.ndarray:

@@ -56,7 +56,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, UInt32
 
-from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
@@ -392,13 +392,6 @@ def _rescale(values: Float, bounds: tuple[float, float] | None, mask: Bool | Non
     return scaled
 
 
-@functools.lru_cache(maxsize=256)
-def _opaque(value: float) -> Float:
-    """An opaque (evaluated, not a kernel constant) scalar, kept for reuse: kernels are not
-    recompiled per weight, and repeated calls do not launch a memset per weight."""
-    return dr.opaque(Float, value)
-
-
 # --- Public operations ------------------------------------------------------------------------
 def _weighted_sum(kernel: np.ndarray) -> tuple[list[tuple[int, int]], Callable[[Taps], tuple[Float]]]:
     """Taps and combination for a correlation kernel; weights are opaque (no recompilation)."""
@@ -409,7 +402,7 @@ def _weighted_sum(kernel: np.ndarray) -> tuple[list[tuple[int, int]], Callable[[
     def combine(taps: Taps) -> tuple[Float]:
         total = Float(0.0)
         for dy, dx in offsets:
-            total = dr.fma(taps[(dy, dx)], _opaque(float(kernel[dy + ry, dx + rx])), total)
+            total = dr.fma(taps[(dy, dx)], opaque_scalar(Float, float(kernel[dy + ry, dx + rx])), total)
         return (total,)
 
     return offsets, combine

@@ -39,7 +39,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32, UInt64
 
-from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["METHODS", "KEYS_A", "keys_kernel", "resize", "sample"]
 

@@ -1,4 +1,4 @@
-"""Array conventions shared by every imaging operation (imaging/_array.py)."""
+"""Array conventions shared by every imaging operation (imaging/arrays.py)."""
 
 from __future__ import annotations
 

@@ -491,9 +491,11 @@ def test_post_cli_dither_and_report(cli, tmp_path):
 def test_divmod_helper_is_exact():
     from drjit.llvm import UInt32
 
+    from pointillist.imaging.arrays import divmod_u32
+
     a = np.concatenate([np.arange(0, 50000), np.arange(2**32 - 50000, 2**32)]).astype(np.uint32)
     for divisor in (1, 3, 7, 255, 2048, 2049, 65537, 12345679):
-        q, r = dither._divmod(UInt32(a), divisor)
+        q, r = divmod_u32(UInt32(a), divisor)
         assert np.array_equal(np.asarray(q), a // divisor) and np.array_equal(np.asarray(r), a % divisor)
     # and the non-power-of-two template path of ordered dithering
     image = np.random.default_rng(1).integers(0, 256, (11, 13)).astype(np.float32)
