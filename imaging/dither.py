@@ -56,12 +56,13 @@ Examples
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import warnings
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import drjit as dr
 import numpy as np
@@ -90,6 +91,9 @@ __all__ = [
     "intensity_thresholds",
     "void_and_cluster",
     "dither_error",
+    "dither",
+    "dither_options",
+    "DITHER_METHODS",
 ]
 
 #: The SPEC's 4 x 4 template (= ``bayer(4)``): a pixel is white where p >= its entry.
@@ -1021,6 +1025,108 @@ def blue_noise(image: Any, *, levels: int = 2, linear: bool = False, mask: Any =
     if mask is None:  # the shipped mask: loaded and checked once per process
         return _ordered(image, _blue_noise_mask(), _check_levels(levels), _check_bool(linear, "linear"))
     return ordered(image, mask, levels=levels, linear=linear)
+
+
+# --------------------------------------------------------------------------------------------
+# one entry point
+
+
+def _threshold_method(image: Any, *, level: float = 128) -> TensorXf:
+    return threshold(image, level)
+
+
+def _ordered_method(image: Any, *, n: int = 4, levels: int = 2, linear: bool = False) -> TensorXf:
+    return ordered(image, bayer(n), levels=levels, linear=linear)
+
+
+def _pattern_method(image: Any, *, n: int = 4, levels: int = 2, linear: bool = False) -> TensorXf:
+    return pattern(image, bayer(n), levels=levels, linear=linear)
+
+
+def _halftone_method(image: Any, *, n: int = 3) -> TensorXf:
+    return halftone(image, n)
+
+
+def _kernel_method(kernel: str) -> Any:
+    def method(image: Any, *, level: float = 128, levels: int = 2, serpentine: bool = False,
+               linear: bool = False) -> TensorXf:
+        return diffuse(image, kernel, level=level, levels=levels, serpentine=serpentine, linear=linear)
+
+    return method
+
+
+#: The methods of :func:`dither`, by name: each a function ``(image, **options)`` whose keyword
+#: parameters are the method's options and defaults. ``ordered``/``bayer`` and ``pattern`` use the
+#: ``n`` x ``n`` Bayer matrix (``n=4``: the SPEC's :data:`TEMPLATE_4`).
+DITHER_METHODS: dict[str, Callable[..., TensorXf]] = {
+    "threshold": _threshold_method,
+    "error_diffusion": error_diffusion,
+    **{name: _kernel_method(name) for name in KERNELS},
+    "ordered": _ordered_method,
+    "bayer": _ordered_method,
+    "blue_noise": blue_noise,
+    "pattern": _pattern_method,
+    "halftone": _halftone_method,
+}
+
+
+@lru_cache(maxsize=None)
+def dither_options(method: str) -> tuple[str, ...]:
+    """The option names :func:`dither` takes for ``method`` (the keyword parameters of its function).
+
+    Examples
+    --------
+    >>> from pointillist.imaging.dither import dither_options
+    >>> dither_options("halftone"), dither_options("ordered")
+    (('n',), ('n', 'levels', 'linear'))
+    """
+    if not isinstance(method, str) or method not in DITHER_METHODS:
+        raise ValueError(f"method: expected one of {', '.join(DITHER_METHODS)}, got {method!r}")
+    parameters = list(inspect.signature(DITHER_METHODS[method]).parameters.values())[1:]
+    return tuple(p.name for p in parameters)
+
+
+def dither(image: Any, method: str = "floyd_steinberg", **options: Any) -> TensorXf:
+    """Dither ``image`` with the named ``method`` of :data:`DITHER_METHODS` and its ``options``.
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
+        Intensities on 0..255.
+    method : str
+        ``threshold`` (option ``level``), ``error_diffusion`` (``level``, ``levels``, ``linear``),
+        an error-diffusion kernel of :data:`KERNELS` such as ``floyd_steinberg`` (``level``,
+        ``levels``, ``serpentine``, ``linear``; see :func:`diffuse`), ``ordered`` or ``bayer``
+        (``n``, ``levels``, ``linear``), ``blue_noise`` (``levels``, ``linear``, ``mask``),
+        ``pattern`` (``n``, ``levels``, ``linear``) or ``halftone`` (``n``).
+    **options
+        The method's options (:func:`dither_options`); values are checked by the method.
+
+    Returns
+    -------
+    drjit.llvm.TensorXf
+        The dithered image (``halftone``: n times larger in each direction).
+
+    Raises
+    ------
+    ValueError
+        For an unknown method or an option the method does not take.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pointillist.imaging.dither import dither
+    >>> np.asarray(dither(np.full((2, 4), 64.0), "floyd_steinberg")).tolist()
+    [[0.0, 0.0, 0.0, 0.0], [0.0, 255.0, 0.0, 255.0]]
+    >>> np.asarray(dither(np.array([[128.0]]), "halftone", n=2)).astype(int).tolist()
+    [[0, 0], [255, 255]]
+    """
+    allowed = dither_options(method)
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: not an option of dither method {method!r} "
+                         f"(its options: {', '.join(allowed) or 'none'})")
+    return DITHER_METHODS[method](image, **options)
 
 
 # --------------------------------------------------------------------------------------------

@@ -17,10 +17,10 @@ import mitsuba as mi
 
 from pointillist.imaging.arrays import divmod_u32
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
-from pointillist.plugins.bsdfs._common import boolean_property, integer_property, number_property, string_property
 from pointillist.plugins.integrators._common import develop_film
 from pointillist.plugins.integrators._lanes import (add_blocks, add_by_pixel, all_finite, compact1by1, compact_flags,
                                                     part1by1)
+from pointillist.plugins.properties import boolean_property, integer_property, number_property, string_property
 
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
 
