@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import pointillist.imaging.dither as dither
+import pointillist.imaging.wavefront as wavefront
 import pointillist.imaging.filters
 from pointillist.imaging.dither import (KERNELS, TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, diffuse,
                             dither_error, error_diffusion, floyd_steinberg, halftone, ordered, pattern)
@@ -115,7 +116,7 @@ def test_floyd_steinberg_large_image_matches_reference():
 def test_result_does_not_depend_on_packet_width(monkeypatch, lanes):
     rng = np.random.default_rng(lanes)
     image = (rng.random((37, 29)) * 255).astype(np.float32)
-    monkeypatch.setattr(dither, "_lanes", lambda: lanes)
+    monkeypatch.setattr(wavefront, "verified_lanes", lambda: lanes)
     for name in ("floyd_steinberg", "jarvis_judice_ninke"):
         expected = reference_diffuse(prepare(image), weights_of(name))
         assert np.array_equal(np.asarray(diffuse(image, name)), expected)
@@ -124,19 +125,19 @@ def test_result_does_not_depend_on_packet_width(monkeypatch, lanes):
 def test_overestimated_packet_width_is_caught_and_halved(monkeypatch):
     # The lane count comes from CPU flags; if it exceeds Dr.Jit's real SIMD packet, the one-time
     # check against the one-lane schedule must catch it and fall back to a width that is exact.
-    monkeypatch.setattr(dither, "_packet_width", lambda: 64)
+    monkeypatch.setattr(wavefront, "packet_width", lambda: 64)
     monkeypatch.delenv("POINTILLIST_DITHER_LANES", raising=False)
-    dither._lanes.cache_clear()
+    wavefront.verified_lanes.cache_clear()
     try:
         with pytest.warns(RuntimeWarning, match="narrower than the 64 lanes"):
-            lanes = dither._lanes()
+            lanes = wavefront.verified_lanes()
         assert 1 <= lanes < 64
         rng = np.random.default_rng(5)
         image = (rng.random((2 * lanes + 5, 23)) * 255).astype(np.float32)
         expected = reference_diffuse(prepare(image), weights_of("floyd_steinberg"))
         assert np.array_equal(np.asarray(diffuse(image, "floyd_steinberg")), expected)
     finally:
-        dither._lanes.cache_clear()
+        wavefront.verified_lanes.cache_clear()
 
 
 def test_error_diffusion_matches_reference():
@@ -206,7 +207,7 @@ def test_colour_is_per_channel():
 
 
 def test_threshold_is_the_filters_function():
-    assert dither.threshold is imaging.filters.threshold
+    assert dither.threshold is pointillist.imaging.filters.threshold
     assert np.asarray(dither.threshold(np.array([[127.99, 128.0]]))).tolist() == [[0.0, 255.0]]
 
 
@@ -444,6 +445,10 @@ def test_bad_arguments():
 def test_module_examples_run():
     result = doctest.testmod(dither, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 10 and result.failed == 0
+    import pointillist.imaging.blue_noise as blue_noise_module
+
+    result = doctest.testmod(blue_noise_module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 1 and result.failed == 0
 
 
 # ----------------------------------------------------------------------------------------------

@@ -33,8 +33,8 @@ import mitsuba as mi
 
 from pointillist.plugins.properties import integer_property
 
-__all__ = ["PatternSampler", "GridLayout", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG", "MAX_GRID_ASPECT",
-           "MAX_SAMPLE_COUNT"]
+__all__ = ["PatternSampler", "GridLayout", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG",
+           "MAX_GRID_ASPECT", "MAX_SAMPLE_COUNT"]
 
 #: Rounds of the Tiny Encryption Algorithm per hash: 4, Mitsuba's own default for
 #: ``sample_tea_32`` (Zafar, Olano, Curtis, "GPU random numbers via the tiny
