@@ -139,8 +139,8 @@ def hsv_from_rgb_values(r: Float, g: Float, b: Float) -> tuple[Float, Float, Flo
     --------
     >>> from drjit.llvm import Float
     >>> from pointillist.imaging.colour import hsv_from_rgb_values
-    >>> [float(c[0]) for c in hsv_from_rgb_values(Float(0.0), Float(0.5), Float(1.0))]
-    [210.0, 1.0, 1.0]
+    >>> [float(c[0]) for c in hsv_from_rgb_values(Float(0.5), Float(1.0), Float(0.5))]
+    [120.0, 0.5, 1.0]
     """
     v = dr.maximum(dr.maximum(r, g), b)
     delta = v - dr.minimum(dr.minimum(r, g), b)
@@ -162,8 +162,8 @@ def rgb_from_hsv_values(h: Float, s: Float, v: Float) -> tuple[Float, Float, Flo
     --------
     >>> from drjit.llvm import Float
     >>> from pointillist.imaging.colour import rgb_from_hsv_values
-    >>> [float(c[0]) for c in rgb_from_hsv_values(Float(210.0), Float(1.0), Float(1.0))]
-    [0.0, 0.5, 1.0]
+    >>> [float(c[0]) for c in rgb_from_hsv_values(Float(120.0), Float(0.5), Float(1.0))]
+    [0.5, 1.0, 0.5]
     """
     h = h * (1.0 / 60.0)
     h = h - 6.0 * dr.floor(h * (1.0 / 6.0))  # wrap to [0, 6)

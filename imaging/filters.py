@@ -95,7 +95,8 @@ def _rescale(values: Float, bounds: tuple[float, float] | None, mask: Bool | Non
     scale = 255.0 / (high - low) if high > low else 0.0
     if not math.isfinite(scale):       # max - min underflows to a subnormal
         scale = 255.0 / (np.float64(high) - np.float64(low))
-    scaled = select_min(select_max((values - dr.opaque(Float, low)) * dr.opaque(Float, scale), Float(0.0)), Float(255.0))
+    shifted = (values - dr.opaque(Float, low)) * dr.opaque(Float, scale)
+    scaled = select_min(select_max(shifted, Float(0.0)), Float(255.0))
     scaled = dr.select(dr.isinf(values), 255.0, scaled)
     scaled = dr.select(dr.isnan(values), values, scaled)
     if mask is not None:

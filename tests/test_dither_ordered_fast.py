@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from drjit.llvm import UInt32
 
-import pointillist.imaging.dither as dither
 from pointillist.imaging.arrays import as_tensor, divmod_u32
 from pointillist.imaging.colour import srgb_decode
 from pointillist.imaging.dither import TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, intensity_thresholds, ordered
