@@ -29,6 +29,7 @@ Function                    Domain                          Range
 ``halftone``                any real; clipped to 0..255     {0, 255}, shape (n H, n W[, C])
 ``pattern``, ``ordered``,   any real; clipped to 0..255     ``levels`` values
 ``blue_noise``
+``dither``                  by method (:data:`DITHER_METHODS`), one entry for all of the above
 ``dither_error``            two images of the same shape    (total, average), float64
 ==========================  ==============================  =================================
 
@@ -734,6 +735,10 @@ def _pattern_method(image: Any, *, n: int = 4, levels: int = 2, linear: bool = F
     return pattern(image, bayer(n), levels=levels, linear=linear)
 
 
+def _blue_noise_method(image: Any, *, levels: int = 2, linear: bool = False) -> TensorXf:
+    return blue_noise(image, levels=levels, linear=linear)
+
+
 def _halftone_method(image: Any, *, n: int = 3) -> TensorXf:
     return halftone(image, n)
 
@@ -755,7 +760,7 @@ DITHER_METHODS: dict[str, Callable[..., TensorXf]] = {
     **{name: _kernel_method(name) for name in KERNELS},
     "ordered": _ordered_method,
     "bayer": _ordered_method,
-    "blue_noise": blue_noise,
+    "blue_noise": _blue_noise_method,
     "pattern": _pattern_method,
     "halftone": _halftone_method,
 }
@@ -788,7 +793,7 @@ def dither(image: Any, method: str = "floyd_steinberg", **options: Any) -> Tenso
         ``threshold`` (option ``level``), ``error_diffusion`` (``level``, ``levels``, ``linear``),
         an error-diffusion kernel of :data:`KERNELS` such as ``floyd_steinberg`` (``level``,
         ``levels``, ``serpentine``, ``linear``; see :func:`diffuse`), ``ordered`` or ``bayer``
-        (``n``, ``levels``, ``linear``), ``blue_noise`` (``levels``, ``linear``, ``mask``),
+        (``n``, ``levels``, ``linear``), ``blue_noise`` (``levels``, ``linear``; the shipped mask),
         ``pattern`` (``n``, ``levels``, ``linear``) or ``halftone`` (``n``).
     **options
         The method's options (:func:`dither_options`); values are checked by the method.

@@ -477,6 +477,33 @@ def test_post_step_functions():
         spec.function(image, method="halftone", levels=3)
 
 
+def test_dither_entry_dispatches_by_method():
+    rng = np.random.default_rng(9)
+    image = (rng.random((13, 11, 3)) * 255).astype(np.float32)
+    same = [
+        (dither.dither(image), floyd_steinberg(image)),
+        (dither.dither(image, "stucki", levels=3, serpentine=True), diffuse(image, "stucki", levels=3, serpentine=True)),
+        (dither.dither(image, "error_diffusion", level=100), error_diffusion(image, 100)),
+        (dither.dither(image, "threshold", level=90), dither.threshold(image, 90)),
+        (dither.dither(image, "ordered"), ordered(image, TEMPLATE_4)),
+        (dither.dither(image, "bayer", n=8, levels=4), ordered(image, bayer(8), levels=4)),
+        (dither.dither(image, "pattern", n=2), dither.pattern(image, bayer(2))),
+        (dither.dither(image, "blue_noise", linear=True), blue_noise(image, linear=True)),
+        (dither.dither(image, "halftone", n=2), dither.halftone(image, 2)),
+    ]
+    for got, expected in same:
+        assert np.array_equal(np.asarray(got), np.asarray(expected))
+    assert set(dither.DITHER_METHODS) == {"threshold", "error_diffusion", *KERNELS, "ordered", "bayer", "blue_noise",
+                                          "pattern", "halftone"}
+    assert dither.dither_options("atkinson") == ("level", "levels", "serpentine", "linear")
+    with pytest.raises(ValueError, match="^method: expected one of threshold, error_diffusion, floyd_steinberg"):
+        dither.dither(image, "nope")
+    with pytest.raises(ValueError, match=r"^levels: not an option of dither method 'halftone' \(its options: n\)$"):
+        dither.dither(image, "halftone", levels=3)
+    with pytest.raises(ValueError, match="levels: expected an integer from 2 to 256"):
+        dither.dither(image, "ordered", levels=1)
+
+
 def test_post_cli_dither_and_report(cli, tmp_path):
     Image = pytest.importorskip("PIL.Image")
     source = tmp_path / "grey.png"

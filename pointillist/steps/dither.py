@@ -30,7 +30,7 @@ def _report(before: Any, after: Any) -> dict[str, float]:
 
 
 @step("dither", params=("method",), report=_report,
-      help="dither to 1 bit (or levels=N): " + ", ".join(dither.DITHER_METHODS)
-           + "; options level, levels, serpentine, n, linear")
+      help="dither to 1 bit (or levels=N): " + ", ".join(dither.DITHER_METHODS) + "; options "
+           + ", ".join(dict.fromkeys(o for m in dither.DITHER_METHODS for o in dither.dither_options(m))))
 def _dither(image, method: str = "floyd_steinberg", **options):
     return dither.dither(image, method, **options)
