@@ -11,9 +11,10 @@ import math
 import numbers
 
 import mitsuba as mi
+import numpy as np
 
 __all__ = ["texture_property", "spectrum_property", "string_property", "boolean_property", "number_property",
-           "integer_property"]
+           "integer_property", "transform_property", "scalar_transform"]
 
 
 def _as_triple(value, name: str) -> tuple[float, float, float] | None:
@@ -131,3 +132,23 @@ def integer_property(props, name: str, default: int, minimum: int, maximum: int,
         note = f" ({meaning})" if meaning else ""
         raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}{note}, got {value}")
     return value
+
+
+def scalar_transform(value, name: str = "to_world") -> mi.ScalarTransform4f:
+    """A ``mi.ScalarTransform4f`` from any Mitsuba transform (float or double) or a 4x4 matrix:
+    finite and not singular, else a ValueError naming ``name``."""
+    try:
+        matrix = np.array(value.matrix if hasattr(value, "matrix") else value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name}: expected a transform or a 4x4 matrix, got {type(value).__name__}") from None
+    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise ValueError(f"{name}: expected a finite 4x4 transform, got shape {matrix.shape}")
+    if abs(np.linalg.det(matrix[:3, :3])) < 1e-30:
+        raise ValueError(f"{name}: the transform is singular (a zero scale?)")
+    return mi.ScalarTransform4f(mi.ScalarMatrix4f(matrix.astype(np.float32)))
+
+
+def transform_property(props, name: str = "to_world") -> mi.ScalarTransform4f:
+    """A transform property (``<transform>``, or a 4x4 matrix from Python) as a checked
+    ``mi.ScalarTransform4f`` (:func:`scalar_transform`); the identity when absent."""
+    return scalar_transform(props[name] if name in props else mi.ScalarTransform4f(), name)

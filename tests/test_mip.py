@@ -298,6 +298,8 @@ def test_bad_parameters_raise(mi):
     ("spacing", "1,-2,1", ValueError, "spacing: expected three positive numbers"),
     ("spacing", 2.0, TypeError, "spacing: expected a string, got float"),
     ("filename", 3, TypeError, "filename: expected a string, got int"),
+    ("to_world", "abc", TypeError, "to_world: expected a transform or a 4x4 matrix, got str"),
+    ("to_world", 5.0, ValueError, r"to_world: expected a finite 4x4 transform, got shape \(\)"),
 ])
 def test_bad_properties_name_the_property(mi, key, value, error, message):
     from pointillist.plugins.integrators.mip import MIPIntegrator

@@ -11,7 +11,8 @@ import numpy as np
 from pointillist.imaging.volumes import Volume, load_volume, volume_texture
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 from pointillist.plugins.integrators._common import develop_film
-from pointillist.plugins.properties import boolean_property, number_property, string_property
+from pointillist.plugins.properties import (boolean_property, number_property, scalar_transform, string_property,
+                                            transform_property)
 
 __all__ = ["MIPIntegrator", "MODES"]
 
@@ -27,16 +28,6 @@ def _parse_spacing(text: str) -> list[float]:
     if len(spacing) != 3 or not all(math.isfinite(s) and s > 0 for s in spacing):
         raise ValueError(f"spacing: expected three positive numbers 'sx,sy,sz', got {text!r}")
     return spacing
-
-
-def _scalar_transform(value) -> mi.ScalarTransform4f:
-    """A ``mi.ScalarTransform4f`` from any Mitsuba transform (float or double) or a 4x4 matrix."""
-    matrix = np.array(value.matrix if hasattr(value, "matrix") else value, dtype=np.float64)
-    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
-        raise ValueError(f"to_world: expected a finite 4x4 transform, got shape {matrix.shape}")
-    if abs(np.linalg.det(matrix[:3, :3])) < 1e-30:
-        raise ValueError("to_world: the transform is singular (a zero scale?)")
-    return mi.ScalarTransform4f(mi.ScalarMatrix4f(matrix.astype(np.float32)))
 
 
 class MIPIntegrator(mi.SamplingIntegrator):
@@ -137,7 +128,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self.skip_bricks = boolean_property(props, "skip_bricks", True)
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
-        self.to_world = _scalar_transform(props.get("to_world", mi.ScalarTransform4f()))
+        self.to_world = transform_property(props, "to_world")
         spacing = _parse_spacing(string_property(props, "spacing", "")) if "spacing" in props else None
         self.volume: Volume | None = None
         self._tex = None
@@ -162,7 +153,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if spacing is not None:
             volume = Volume(volume.data, spacing, volume.origin, volume.metadata)
         if to_world is not None:
-            self.to_world = _scalar_transform(to_world)
+            self.to_world = scalar_transform(to_world, "to_world")
         filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
         self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
         self.volume = volume
