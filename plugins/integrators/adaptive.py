@@ -428,7 +428,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         sums, valid_n = list(state[2:-1]), state[-1]
         count = dr.full(mi.Float, float((side + 1) ** 2), n_pixels)
         dr.eval(sums, valid_n, count)
-        del state, py, px, base, zero
+        del state, py, px, zero  # (base: read by the loop body above)
         if m >= self.max_depth:
             return sums, valid_n, count
 
