@@ -235,7 +235,8 @@ def _rgb(image: np.ndarray) -> np.ndarray:
         image = np.repeat(image[..., None], 3, axis=2)
     return image[..., :3]
 
-def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, float]:
+def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
+                 maps: dict[str, np.ndarray] | None = None) -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
 
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
@@ -244,8 +245,9 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
       conditions), NaN values and negatives set to 0 first.
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
-    reported, not hidden). Grey (H, W) images are compared as RGB. The per-pixel
-    maps whose means these are: :func:`error_maps`.
+    reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
+    receives the per-pixel maps whose means these are (:func:`error_maps`), at no
+    extra cost.
 
     Examples
     --------
@@ -257,11 +259,14 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
     """
     x, r = _pair(image, reference)
     diff2 = (x - r) ** 2
-    result = {"rmse": float(np.sqrt(diff2.mean())),
-              "relmse": float((diff2 / (r * r + RELMSE_EPSILON)).mean()),
-              "flip": math.nan}
+    relative = diff2 / (r * r + RELMSE_EPSILON)
+    result = {"rmse": float(np.sqrt(diff2.mean())), "relmse": float(relative.mean()), "flip": math.nan}
+    if maps is not None:
+        maps["relmse"] = relative.mean(axis=2).astype(np.float32)
     if flip:
-        result["flip"] = _flip(x, r)[1]
+        flip_map, result["flip"] = _flip(x, r)
+        if maps is not None:
+            maps["flip"] = flip_map
     return result
 
 def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, np.ndarray]:
@@ -279,10 +284,8 @@ def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -
     >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"]
     array([[1., 3.]], dtype=float32)
     """
-    x, r = _pair(image, reference)
-    maps = {"relmse": ((x - r) ** 2 / (r * r + RELMSE_EPSILON)).mean(axis=2).astype(np.float32)}
-    if flip:
-        maps["flip"] = _flip(x, r)[0]
+    maps: dict[str, np.ndarray] = {}
+    image_errors(image, reference, flip=flip, maps=maps)
     return maps
 
 def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -306,12 +309,14 @@ def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
+              maps: dict[str, dict[str, np.ndarray]] | None = None,
               render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
 
     With ``progress``, a progress bar draws on a terminal (standard error a TTY);
     otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
-    of the bar's redraws.
+    of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
+    seed-0 render (by ``record.exr``, :func:`error_maps`) for the report page.
     """
     import sys
 
@@ -334,7 +339,10 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
                 + ("(reused)" if record.cached else format_time(record.time)))
     for record in records:
         image = read_exr(Path(out_dir) / "renders" / record.exr).image
-        record.__dict__.update(image_errors(image, ref_image))
+        kept = {} if maps is not None and record.seed == 0 else None
+        record.__dict__.update(image_errors(image, ref_image, maps=kept))
+        if kept is not None:
+            maps[record.exr] = kept
     return records
 
 
@@ -465,15 +473,16 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
         reference = render_reference(str(scene), params, str(out), reference_spp)
         _check_reference(reference, size)
+    maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
     records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
-                        log=log)
+                        log=log, maps=maps)
     title = f"Sampler comparison: {scene.name}"
     paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title)
     notes = []
     if report:
         from pointillist.compare_html import write_html_report
 
-        page = write_html_report(records, out, scene=str(scene), reference=reference, title=title)
+        page = write_html_report(records, out, scene=str(scene), reference=reference, title=title, maps=maps)
         paths["html"] = page.path
         notes.append(page.summary)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,

@@ -26,7 +26,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -70,8 +70,8 @@ class ReportPage:
         w, h = self.full_size
         if self.stride == 1:
             return f"{size} at {w}x{h}, every pixel"
-        return (f"{size}: every {self.stride}th pixel of {w}x{h} (shown {self.shown_size[0]}x{self.shown_size[1]}) "
-                f"to stay under {DEFAULT_MAX_BYTES / 1e6:.0f} MB")
+        return (f"{size}: every {_ordinal(self.stride)} pixel of {w}x{h} in x and y "
+                f"(shown {self.shown_size[0]}x{self.shown_size[1]}) to stay under the size budget")
 
 
 def template_text(name: str) -> str:
@@ -142,7 +142,8 @@ def _shown(records: Sequence[Any]) -> dict[tuple[str, float], Any]:
 
 def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
                       reference: str | os.PathLike, title: str | None = None,
-                      max_bytes: int = DEFAULT_MAX_BYTES) -> ReportPage:
+                      max_bytes: int = DEFAULT_MAX_BYTES,
+                      maps: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> ReportPage:
     """Write ``out_dir/report.html`` for the sweep ``records`` (:class:`pointillist.compare.RenderRecord`).
 
     The renders are read from ``out_dir/renders/<record.exr>`` and compared with the
@@ -162,6 +163,10 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         The page title.
     max_bytes : int
         Size budget: images are subsampled by a stride when they would not fit.
+    maps : mapping, optional
+        Per-pixel error maps already computed (:func:`pointillist.compare.run_sweep`'s
+        ``maps``), by ``record.exr``; those missing are computed (HDR-FLIP costs about
+        as much as scoring the render did).
 
     Returns
     -------
@@ -200,13 +205,15 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         if image.shape != ref.shape:
             raise ValueError(f"records: {record.exr} is {image.shape[1]}x{image.shape[0]}, the reference "
                              f"{width}x{height}")
-        maps = error_maps(image, ref)
+        found = (maps or {}).get(record.exr)
+        pixel_maps = found if found is not None and {"relmse", "flip"} <= found.keys() else error_maps(image, ref)
         counts = exr.layers.get(SAMPLE_COUNT_LAYER)
-        relmse_maps.append(shrink(maps["relmse"]))
+        relmse_maps.append(shrink(pixel_maps["relmse"]))
         entry = {"id": index, "method": method, "value": value, "setting": setting_label(method, value),
                  "seed": record.seed, "spp": _finite(record.spp), "time": _finite(record.time),
+                 "relmse": _finite(record.relmse), "flip": _finite(record.flip),
                  "rgb": encode_half(shrink(image)), "relmse_map": encode_half(relmse_maps[-1]),
-                 "flip_map": encode_half(shrink(maps["flip"])), "count_map": None}
+                 "flip_map": encode_half(shrink(pixel_maps["flip"])), "count_map": None}
         if counts is not None:
             count_maps.append(shrink(counts))
             entry["count_map"] = encode_half(count_maps[-1])
@@ -245,7 +252,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     notes = [f"Scene <code>{html.escape(scene)}</code>, reference <code>{html.escape(str(reference))}</code>, "
              f"{width}x{height} pixels."]
     if stride > 1:
-        notes.append(f"To keep this page under {max_bytes / 1e6:.0f} MB it holds every {stride}th pixel in x and y "
+        notes.append(f"To keep this page under {max_bytes / 1e6:.3g} MB it holds every {_ordinal(stride)} pixel in x and y "
                      f"({shown_w}x{shown_h}; pixels, not averages): the numbers are those of the full images.")
     if any(p["short"] for p in points):
         notes.append(f"Times marked * are under {format_time(TIMING_FLOOR)}: too short to time reliably; the time "
@@ -259,6 +266,10 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     atomic_write(path, lambda tmp: Path(tmp).write_bytes(encoded))
     return ReportPage(path=path, bytes=len(encoded), stride=stride, full_size=(width, height),
                       shown_size=(shown_w, shown_h), renders=len(renders))
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
 
 def _rgb(image: np.ndarray) -> np.ndarray:

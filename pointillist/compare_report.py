@@ -163,7 +163,8 @@ _SHORT = "*"
 
 def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """The results table as text: ``(header, cells)``, one list of cells per row of
-    :func:`summarise`; a time under :data:`TIMING_FLOOR` ends in ``*``.
+    :func:`summarise`: means ± standard deviations over seeds (means alone for one seed);
+    a time under :data:`TIMING_FLOOR` ends in ``*``.
 
     Examples
     --------
@@ -175,10 +176,12 @@ def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[
     header = ["method", "setting", "spp", "seeds", "time", "compile", "RMSE", "relMSE", "FLIP"]
     cells = []
     for r in rows:
-        time = format_time(r["time"], r["time_std"]) + (f" {_SHORT}" if r["time"] < TIMING_FLOOR else "")
+        several = r["seeds"] > 1  # one seed: no spread to show
+        time = format_time(r["time"], r["time_std"] if several else None)
+        time += f" {_SHORT}" if r["time"] < TIMING_FLOOR else ""
+        rmse = f"{r['rmse']:.5f}" + (f" ± {r['rmse_std']:.5f}" if several else "")
         cells.append([r["method"], setting_label(r["method"], r["value"]), f"{r['spp']:.4g}", str(r["seeds"]),
-                      time, format_time(r["compile"]), f"{r['rmse']:.5f} ± {r['rmse_std']:.5f}",
-                      f"{r['relmse']:.3e}", f"{r['flip']:.4f}"])
+                      time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}"])
     return header, cells
 
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,

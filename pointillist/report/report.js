@@ -7,7 +7,7 @@
  * applying exposure and the sRGB transfer function to the HDR data here.
  * (No closing-tag sequence may appear in this file: it is inlined into the page.)
  * With "#selftest" in the URL it runs scripted interactions after loading and writes
- * their results as JSON into <pre id="selftest-result"> (tests/test_compare_html.py).
+ * their results as JSON into a new element #selftest-result (tests/test_compare_html.py).
  */
 (function () {
   "use strict";
@@ -244,7 +244,8 @@
           var sweepsSpp = D.methods.filter(function (m) { return m.name === r.method; })[0].sweeps_spp;
           bold.textContent = r.method;
           bold.style.color = colourOf[r.method];
-          rest.textContent = r.setting + (sweepsSpp ? "" : ", " + fmtSpp(r.spp) + " spp") + ", " + fmtTime(r.time);
+          rest.textContent = kind === "rgb" ? r.setting + (sweepsSpp ? "" : ", " + fmtSpp(r.spp) + " spp") + ", " +
+            fmtTime(r.time) : kind === "count" ? "mean " + fmtSpp(r.spp) : "mean " + fmtNum(r[kind]);
         }
         var canvas = document.createElement("canvas");
         canvas.className = "pane"; canvas.width = cw; canvas.height = ch;
@@ -261,7 +262,7 @@
     buildScales(kinds);
   }
 
-  function maxZoom() { return Math.max(1, 64 / fit); }  // down to 64 screen pixels per image pixel
+  function maxZoom() { return Math.max(8, 64 / fit); }  // to 64 screen pixels per image pixel (8x at least)
 
   function clampView() {
     view.zoom = Math.min(maxZoom(), Math.max(1, view.zoom));
@@ -349,7 +350,7 @@
     if (!view.hover) return;
     var x = view.hover[0], y = view.hover[1], i = y * W + x;
     var fx = D.offset + x * D.stride, fy = D.offset + y * D.stride;
-    var lines = ["pixel x " + fx + ", y " + fy + (D.stride > 1 ? "  (every " + D.stride + "th pixel shown)" : "")];
+    var lines = ["pixel x " + fx + ", y " + fy + (D.stride > 1 ? "  (1 in " + D.stride + " pixels in x and y shown)" : "")];
     var columns = [];
     panes.forEach(function (c) { if (c.dataset.kind === "rgb") columns.push(c.dataset.column); });
     columns.forEach(function (column) {
@@ -386,7 +387,7 @@
       title.textContent = scale.label + (scale.log ? " (log scale)" : "");
       var ticks = document.createElement("div");
       ticks.className = "scale-ticks";
-      var fmt = scale.log ? fmtNum : function (v) { return String(+v.toPrecision(3)); };
+      var fmt = function (v) { return scale.log ? v.toExponential(1) : String(+v.toPrecision(3)); };
       var mid = scale.log ? Math.sqrt(scale.lo * scale.hi) : (scale.lo + scale.hi) / 2;
       [scale.lo, mid, scale.hi].forEach(function (v, k) {
         var t = document.createElement("span");
@@ -430,7 +431,7 @@
   }
 
   function plot(axis, xlabel) {
-    var metric = state.metric, w = 520, h = 340, left = 62, right = 12, top = 12, bottom = 44;
+    var metric = state.metric, w = 520, h = 340, left = 62, right = 22, top = 12, bottom = 44;
     var pts = D.points.filter(function (p) { return p[axis] > 0 && p[metric] > 0; });
     var wrap = document.createElement("div");
     wrap.className = "plot"; wrap.dataset.axis = axis;
@@ -528,18 +529,27 @@
   setMode("spp", null);
   buildPlots();
   buildViewer();
-  if (selftesting) setTimeout(selftest, 0);
+  if (selftesting) window.addEventListener("load", function () { setTimeout(selftest, 0); });
 
   // ------------------------------------------------------------------ self-test (tests/test_compare_html.py)
+  var scratch = null;
+  function readback(canvas) {  // the canvas's pixels, copied 1:1 through one canvas made for reading back
+    scratch = scratch || document.createElement("canvas");
+    scratch.width = canvas.width; scratch.height = canvas.height;
+    var ctx = scratch.getContext("2d", { willReadFrequently: true });
+    ctx.drawImage(canvas, 0, 0);
+    return { data: ctx.getImageData(0, 0, canvas.width, canvas.height).data, width: canvas.width };
+  }
+
   function painted(canvas) {  // how many pixels differ from the pane background
-    var d = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data, n = 0;
+    var d = readback(canvas).data, n = 0;
     for (var i = 0; i < d.length; i += 4) if (d[i] !== 42 || d[i + 1] !== 42 || d[i + 2] !== 42) n++;
     return n;
   }
 
   function pixelAt(canvas, x, y) {
-    var d = canvas.getContext("2d").getImageData(Math.floor(x), Math.floor(y), 1, 1).data;
-    return [d[0], d[1], d[2]];
+    var pixels = readback(canvas), j = 4 * (Math.floor(y) * pixels.width + Math.floor(x));
+    return [pixels.data[j], pixels.data[j + 1], pixels.data[j + 2]];
   }
 
   function paneInfo(c) {
@@ -572,15 +582,16 @@
       // expected colour (exposure 0, sRGB) at this magnification
       var s = fit * view.zoom, ix = Math.floor(view.cx), iy = Math.floor(view.cy);
       result.pixel_checks = panes.map(function (c) {
-        var sx = (ix + 0.5 - view.cx) * s + c.width / 2, sy = (iy + 0.5 - view.cy) * s + c.height / 2;
+        var cxs = c.width / 2, cys = c.height / 2;  // the canvas centre shows image pixel (ix, iy)
+        var x0 = (ix - view.cx) * s + cxs, y0 = (iy - view.cy) * s + cys;  // that pixel's square on screen
         var src = source(c.dataset.column === "reference" ? "reference" : +c.dataset.column, c.dataset.kind);
-        var expected = pixelAt(src.canvas, ix, iy), corners = [];
-        var half = Math.max(0, s / 2 - 1.5);
-        [[-half, -half], [half, -half], [-half, half], [half, half]].forEach(function (o) {
-          corners.push(pixelAt(c, sx + o[0], sy + o[1]));
+        var corners = [];
+        [[-6, -6], [6, -6], [-6, 6], [6, 6]].forEach(function (o) {
+          corners.push(pixelAt(c, Math.min(x0 + s - 2, Math.max(x0 + 1, cxs + o[0])),
+            Math.min(y0 + s - 2, Math.max(y0 + 1, cys + o[1]))));
         });
-        return { column: c.dataset.column, kind: c.dataset.kind, expected: expected, centre: pixelAt(c, sx, sy),
-          corners: corners, scale: s };
+        return { column: c.dataset.column, kind: c.dataset.kind, expected: pixelAt(src.canvas, ix, iy),
+          centre: pixelAt(c, cxs, cys), corners: corners, scale: s };
       });
       // pan: drag on another pane (the reference) moves every pane
       var ref = panes[0], r2 = ref.getBoundingClientRect();
