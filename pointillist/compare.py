@@ -8,7 +8,9 @@ and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose E
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
 (:func:`image_errors`), and :func:`pointillist.compare_report.write_report` writes
-``results.csv``, ``results.md`` and the two log-log plots. On a Dask cluster
+``results.csv``, ``results.md`` and the two log-log plots, and
+:func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
+maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
 (:func:`prerender_sweep`) every missing render is a task; the scoring pass that
 follows finds them finished. :func:`compare_scene` is ``pointillist compare``.
 """

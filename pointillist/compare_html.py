@@ -225,16 +225,14 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
                "short": bool(r["time"] < TIMING_FLOOR), "render": render_of[(r["method"], float(r["value"]))]}
               for r in rows]
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    import matplotlib
-
-    palette = matplotlib.colormaps["tab10"].colors
+    palette = bytes.fromhex(colormap_table("tab10", 10))  # matplotlib's default colour cycle
     shown_h, shown_w = shrink(ref).shape[:2]
     data = {
         "title": title or "Sampler comparison", "width": shown_w, "height": shown_h,
         "full_width": width, "full_height": height, "stride": stride, "offset": offset,
         "reference": {"label": _reference_label(Path(reference), ref_exr.metadata), "rgb": encode_half(shrink(ref))},
         "renders": renders, "points": points,
-        "methods": [{"name": m, "colour": "#" + bytes(np.round(np.array(palette[i % 10]) * 255).astype(np.uint8)).hex(),
+        "methods": [{"name": m, "colour": "#" + palette[3 * (i % 10):3 * (i % 10) + 3].hex(),
                      "sweeps_spp": sweep_parameter(m) == "spp",
                      "slope_spp": _finite(fitted[m]["mse_vs_spp"]), "slope_time": _finite(fitted[m]["mse_vs_time"])}
                     for i, m in enumerate(methods)],
@@ -252,8 +250,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     notes = [f"Scene <code>{html.escape(scene)}</code>, reference <code>{html.escape(str(reference))}</code>, "
              f"{width}x{height} pixels."]
     if stride > 1:
-        notes.append(f"To keep this page under {max_bytes / 1e6:.3g} MB it holds every {_ordinal(stride)} pixel in x and y "
-                     f"({shown_w}x{shown_h}; pixels, not averages): the numbers are those of the full images.")
+        notes.append(f"To keep this page under {max_bytes / 1e6:.3g} MB it holds every {_ordinal(stride)} pixel in "
+                     f"x and y ({shown_w}x{shown_h}; pixels, not averages): the numbers are those of the full images.")
     if any(p["short"] for p in points):
         notes.append(f"Times marked * are under {format_time(TIMING_FLOOR)}: too short to time reliably; the time "
                      "slopes leave them out.")

@@ -237,7 +237,8 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
         lines += ["", "–: the method sweeps another parameter than spp; a fit over that sweep is not "
                   "a convergence rate."]
     if len(timed) < len(rows):
-        lines += ["", f"MSE vs time: fitted over the points of {floor} or more; – {_SHORT}: fewer than two such points."]
+        lines += ["", f"MSE vs time: fitted over the points of {floor} or more; – {_SHORT}: fewer than two such "
+                  "points."]
     lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", ""]
     if timed:
         lines += ["| budget | ranking (MSE) |", "|---:|---|"]

@@ -149,7 +149,8 @@
     values.forEach(function (v) {
       var o = document.createElement("option");
       o.value = String(v);
-      o.textContent = state.mode === "spp" ? fmtSpp(v) + " spp" : fmtTime(v);
+      var p = D.points.filter(function (q) { return q[state.mode] === v; })[0];
+      o.textContent = state.mode === "spp" ? fmtSpp(v) + " spp" : fmtTime(v) + " (" + p.method + " " + p.setting + ")";
       targetSelect.appendChild(o);
     });
     if (state.target == null || values.indexOf(state.target) < 0) {
