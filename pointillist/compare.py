@@ -8,7 +8,9 @@ and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose E
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
 (:func:`image_errors`), and :func:`pointillist.compare_report.write_report` writes
-``results.csv``, ``results.md`` and the two log-log plots. On a Dask cluster
+``results.csv``, ``results.md`` and the two log-log plots, and
+:func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
+maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
 (:func:`prerender_sweep`) every missing render is a task; the scoring pass that
 follows finds them finished. :func:`compare_scene` is ``pointillist compare``.
 """
@@ -30,7 +32,8 @@ from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "run_sweep",
+    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "error_maps",
+    "run_sweep",
     "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
     "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
 ]
@@ -234,7 +237,8 @@ def _rgb(image: np.ndarray) -> np.ndarray:
         image = np.repeat(image[..., None], 3, axis=2)
     return image[..., :3]
 
-def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, float]:
+def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
+                 maps: dict[str, np.ndarray] | None = None) -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
 
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
@@ -243,7 +247,9 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
       conditions), NaN values and negatives set to 0 first.
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
-    reported, not hidden). Grey (H, W) images are compared as RGB.
+    reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
+    receives the per-pixel maps whose means these are (:func:`error_maps`), at no
+    extra cost.
 
     Examples
     --------
@@ -253,45 +259,92 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
     >>> round(e["rmse"], 6), round(e["relmse"], 6)
     (0.1, 0.038462)
     """
+    x, r = _pair(image, reference)
+    diff2 = (x - r) ** 2
+    relative = diff2 / (r * r + RELMSE_EPSILON)
+    result = {"rmse": float(np.sqrt(diff2.mean())), "relmse": float(relative.mean()), "flip": math.nan}
+    if maps is not None:
+        maps["relmse"] = relative.mean(axis=2).astype(np.float32)
+    if flip:
+        flip_map, result["flip"] = _flip(x, r)
+        if maps is not None:
+            maps["flip"] = flip_map
+    return result
+
+def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, np.ndarray]:
+    """Per-pixel errors of ``image`` against ``reference``: (H, W) float32 maps.
+
+    - ``relmse``: ``mean over RGB of (x - r)^2 / (r^2 + 0.01)``; its mean over the
+      pixels is :func:`image_errors`' ``relmse``;
+    - ``flip`` (with ``flip``): the HDR-FLIP error map in [0, 1] (flip-evaluator, the
+      input cleaned as in :func:`image_errors`); its mean is the ``flip`` there.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = np.zeros((1, 2, 3), np.float32)
+    >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"]
+    array([[1., 3.]], dtype=float32)
+    """
+    maps: dict[str, np.ndarray] = {}
+    image_errors(image, reference, flip=flip, maps=maps)
+    return maps
+
+def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x, r = _rgb(image), _rgb(reference)
     if x.shape != r.shape:
         raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
-    diff2 = (x - r) ** 2
-    result = {"rmse": float(np.sqrt(diff2.mean())),
-              "relmse": float((diff2 / (r * r + RELMSE_EPSILON)).mean()),
-              "flip": math.nan}
-    if flip:
-        import flip_evaluator
+    return x, r
 
-        def clean(a):
-            return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4),
-                                        dtype=np.float32)
+def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """HDR-FLIP of ``x`` against ``r``: the (H, W) map and its mean."""
+    import flip_evaluator
 
-        _, mean, _ = flip_evaluator.evaluate(clean(r), clean(x), "HDR", applyMagma=False)
-        result["flip"] = float(mean)
-    return result
+    def clean(a):
+        return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
+
+    error_map, mean, _ = flip_evaluator.evaluate(clean(r), clean(x), "HDR", applyMagma=False)
+    return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
 
 
 # ------------------------------------------------------------------------------ sweep
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
-              reference: Path, progress: bool = True,
+              reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
+              maps: dict[str, dict[str, np.ndarray]] | None = None,
               render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
-    """Run ``tasks`` (skipping finished ones), then score each render against ``reference``."""
+    """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
+
+    With ``progress``, a progress bar draws on a terminal (standard error a TTY);
+    otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
+    of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
+    seed-0 render (by ``record.exr``, :func:`error_maps`) for the report page.
+    """
+    import sys
+
     from tqdm import tqdm
 
+    from pointillist.compare_report import format_time
     from pointillist.imaging.io import read_exr
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
     records = []
-    bar = tqdm(tasks, desc="compare", unit="render", disable=not progress)
-    for task in bar:
+    terminal = progress and sys.stderr.isatty()
+    bar = tqdm(tasks, desc="compare", unit="render", disable=not terminal)
+    for number, task in enumerate(bar, 1):
         bar.set_postfix_str(task.stem)
-        records.append(render(scene_path, task.method, task.value, task.seed, params, out_dir, key))
+        record = render(scene_path, task.method, task.value, task.seed, params, out_dir, key)
+        records.append(record)
+        if progress and not terminal and log is not None:
+            log(f"compare {number}/{len(tasks)}: {task.stem} "
+                + ("(reused)" if record.cached else format_time(record.time)))
     for record in records:
         image = read_exr(Path(out_dir) / "renders" / record.exr).image
-        record.__dict__.update(image_errors(image, ref_image))
+        kept = {} if maps is not None and record.seed == 0 else None
+        record.__dict__.update(image_errors(image, ref_image, maps=kept))
+        if kept is not None:
+            maps[record.exr] = kept
     return records
 
 
@@ -369,14 +422,19 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                   spp: Sequence[int] = DEFAULT_SPP, seeds: int = 1, reference_spp: int = 4096,
                   reference: str | os.PathLike | None = None, out_dir: str | os.PathLike | None = None,
                   params: dict[str, str] | None = None, workers: int | None = None, scheduler: str | None = None,
-                  progress: bool = True, log: Callable[[str], None] = lambda line: None) -> CompareResult:
+                  progress: bool = True, report: bool = True,
+                  log: Callable[[str], None] = lambda line: None) -> CompareResult:
     """``pointillist compare``: sweep ``methods`` over ``spp`` and ``seeds`` on one scene, score
     every render against a reference and write the report into ``out_dir``.
 
     The reference is ``reference`` (an EXR of the render's size) or a render of
     :data:`REFERENCE_SAMPLER` at ``reference_spp``, kept in ``out_dir/reference``.
     Everything that can be checked (scene, sample counts, reference size) is checked
-    before the first render. ``log`` receives progress lines (e.g. ``print``).
+    before the first render. ``log`` receives progress lines (e.g. ``print``; one per
+    finished render when ``progress`` is on and standard error is not a terminal).
+    With ``report``, ``out_dir/report.html`` (:mod:`pointillist.compare_html`) is
+    written too, from every render of the sweep on disk (also those of earlier,
+    interrupted runs); ``paths["html"]`` is its path and ``notes`` say its size.
 
     Raises
     ------
@@ -417,11 +475,20 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
         reference = render_reference(str(scene), params, str(out), reference_spp)
         _check_reference(reference, size)
-    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress)
-    paths = write_report(records, out, scene=str(scene), reference=str(reference),
-                         title=f"Sampler comparison: {scene.name}")
+    maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
+    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
+                        log=log, maps=maps)
+    title = f"Sampler comparison: {scene.name}"
+    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title)
+    notes = []
+    if report:
+        from pointillist.compare_html import write_html_report
+
+        page = write_html_report(records, out, scene=str(scene), reference=reference, title=title, maps=maps)
+        paths["html"] = page.path
+        notes.append(page.summary)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
-                         cluster_renders=cluster_renders)
+                         cluster_renders=cluster_renders, notes=notes)
 
 
 def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
