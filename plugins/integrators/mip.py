@@ -28,6 +28,14 @@ def _scalar_transform(value) -> mi.ScalarTransform4f:
     return mi.ScalarTransform4f(mi.ScalarMatrix4f(matrix.astype(np.float32)))
 
 
+def _inverse_pose(matrix: np.ndarray) -> np.ndarray:
+    """Inverse of a 4x4 rotation / reflection: the exact transpose for a signed permutation (axis-aligned
+    acquisitions: texture-space rays of axis-aligned views stay exactly axis-aligned), else numpy's inverse."""
+    if np.all(np.isin(matrix, (-1.0, 0.0, 1.0))):
+        return matrix.T
+    return np.linalg.inv(matrix)
+
+
 class MIPIntegrator(mi.SamplingIntegrator):
     r"""
     .. _integrator-mip:
@@ -48,7 +56,14 @@ class MIPIntegrator(mi.SamplingIntegrator):
      * - to_world
        - |transform|
        - Pose of the volume. Before it, the volume's box is centred on the origin with
-         size = voxel counts x spacing. (Default: identity)
+         size = voxel counts x spacing and, with ``patient_space``, turned by the volume's
+         direction cosines. (Default: identity)
+     * - patient_space
+       - |bool|
+       - Pose the box in patient space (LPS: x = patient's left, y = posterior, z = superior)
+         by the volume's voxel-to-patient directions (``Volume.directions``, rotation and
+         reflection), so world axes are anatomical whatever the voxel order. Volumes without
+         orientation (``.vol``, ``.npy``, arrays) have identity directions. (Default: true)
      * - mode
        - |string|
        - ``mip`` (maximum), ``minip`` (minimum) or ``average`` along each ray. (Default: ``mip``)
@@ -124,6 +139,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self._background = float(props["background"]) if "background" in props else None
         self.fast_axis = boolean_property(props, "fast_axis", True)
         self.skip_bricks = boolean_property(props, "skip_bricks", True)
+        self.patient_space = boolean_property(props, "patient_space", True)
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
         self.to_world = _scalar_transform(props.get("to_world", mi.ScalarTransform4f()))
@@ -151,12 +167,16 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if spacing is None:
             spacing = getattr(self, "_spacing_override", None)
         if spacing is not None:
-            volume = Volume(volume.data, spacing, volume.origin, volume.metadata)
+            volume = volume.respaced(spacing)
         if to_world is not None:
             self.to_world = _scalar_transform(to_world)
         filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
         self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
         self.volume = volume
+        #: voxel axes -> world (patient LPS) directions: a 4x4 rotation / reflection
+        self._orient = np.eye(4)
+        if self.patient_space:
+            self._orient[:3, :3] = volume.directions
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
         self._flat = None  # per-brick constant value, NaN where the brick is not constant
@@ -184,6 +204,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ext = self.volume.extent
         scalar = (mi.ScalarTransform4f().translate([0.5, 0.5, 0.5])
                   @ mi.ScalarTransform4f().scale([1.0 / e for e in ext])
+                  @ _scalar_transform(_inverse_pose(self._orient))
                   @ self.to_world.inverse())
         transform = mi.Transform4f(scalar)
         dr.make_opaque(transform)
