@@ -134,7 +134,7 @@ def draw_labels(image: np.ndarray, labels: dict[str, str]) -> np.ndarray:
     """Draw orientation letters at the middle of each edge of an 8-bit RGB image (a copy).
 
     Pillow's default font, white with a black outline (readable on any grey level),
-    sized to about 1/24 of the image's smaller side (at least 8 pixels).
+    sized to about 1/20 of the image's smaller side (at least 10 pixels).
 
     Examples
     --------
@@ -150,7 +150,7 @@ def draw_labels(image: np.ndarray, labels: dict[str, str]) -> np.ndarray:
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f"image: expected an (H, W, 3) uint8 array, got {rgb.shape} {rgb.dtype}")
     height, width = rgb.shape[:2]
-    size = max(8, min(width, height) // 24)
+    size = max(10, min(width, height) // 20)
     try:
         font = ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1: the fixed bitmap font
