@@ -608,3 +608,20 @@ def test_cli_labels_exr_patient_axes_frames_and_warnings(cli, tmp_path):
     assert result.stderr.strip().splitlines() == [
         f"pointillist mip: warning: volume: {tmp_path / 's.nrrd'}: NRRD space 'scanner-xyz' has no anatomical "
         "axes; taken as LPS"]
+
+
+def test_integrator_reads_a_frame_and_poses_in_patient_space(mi):
+    import os
+
+    import nibabel
+    from nibabel.testing import data_path
+
+    path = os.path.join(data_path, "example4d.nii.gz")
+    integrator = mi.load_dict({"type": "mip", "filename": path, "frame": 1})
+    np.testing.assert_array_equal(integrator.volume.data, np.asarray(nibabel.load(path).dataobj)[..., 1].T)
+    with pytest.raises(Exception, match="4-D with 2 frames"):
+        mi.load_dict({"type": "mip", "filename": path})
+    unposed = mi.load_dict({"type": "mip", "filename": path, "frame": 1, "patient_space": False})
+    posed_box = np.asarray(integrator._orient[:3, :3]) @ np.asarray(integrator.volume.extent)
+    assert not np.allclose(posed_box, unposed.volume.extent)  # the posed box is turned (LAS, oblique)
+    np.testing.assert_array_equal(unposed._orient, np.eye(4))

@@ -50,6 +50,13 @@ class MIPIntegrator(mi.SamplingIntegrator):
        - Volume file: Mitsuba ``.vol``, ``.npy``, NRRD, NIfTI or a DICOM series folder
          (relative paths resolve against the scene file). Optional when the volume is
          given with :meth:`set_volume`.
+     * - frame
+       - |int|
+       - The volume of a 4-D ``filename`` (4-D NIfTI, DICOM series with several images per
+         position); required for those. (Default: none)
+     * - series
+       - |string|
+       - The DICOM series (UID or index) of a folder holding several. (Default: none)
      * - spacing
        - |string|
        - Voxel size ``"sx,sy,sz"`` (or one number) overriding the file's. (Default: the file's)
@@ -151,7 +158,9 @@ class MIPIntegrator(mi.SamplingIntegrator):
         filename = props.get("filename", None)
         if filename:
             path = mi.file_resolver().resolve(str(filename))
-            self.set_volume(load_volume(str(path), spacing=spacing))
+            frame = int(props["frame"]) if "frame" in props else None
+            series = str(props["series"]) if "series" in props else None
+            self.set_volume(load_volume(str(path), spacing=spacing, frame=frame, series=series))
         elif spacing is not None:
             self._spacing_override = spacing
 
