@@ -625,3 +625,19 @@ def test_integrator_reads_a_frame_and_poses_in_patient_space(mi):
     posed_box = np.asarray(integrator._orient[:3, :3]) @ np.asarray(integrator.volume.extent)
     assert not np.allclose(posed_box, unposed.volume.extent)  # the posed box is turned (LAS, oblique)
     np.testing.assert_array_equal(unposed._orient, np.eye(4))
+
+
+def test_frame_task_loads_the_chosen_frame(mi):
+    import os
+
+    from nibabel.testing import data_path
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import mip_frame_task, project_volume
+
+    path = os.path.join(data_path, "example4d.nii.gz")
+    options = {"size": (24, 24), "interpolation": "nearest", "neurological": True}
+    result = mip_frame_task({"volume": path, "spacing": None, "load": {"frame": 1}, "view": {"view": "coronal"},
+                             "options": options})
+    expected, _ = project_volume(load_volume(path, frame=1), view="coronal", **options)
+    np.testing.assert_array_equal(result["image"], expected)
