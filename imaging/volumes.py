@@ -204,10 +204,8 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None, frame: int | No
     name = path.name.lower()
     if frame is not None and (isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0):
         raise ValueError(f"frame: expected a non-negative integer, got {frame!r}")
-    four_d = False
     if path.is_dir():
         volume = read_dicom_series(path, frame=frame, series=series)
-        four_d = True
     elif not path.exists():
         raise ValueError(f"volume: no such file or folder: {path}")
     elif name.endswith(".vol"):
@@ -218,14 +216,12 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None, frame: int | No
         volume = read_nrrd(path)
     elif name.endswith((".nii", ".nii.gz")):
         volume = read_nifti(path, frame=frame)
-        four_d = True
     elif name.endswith(".dcm"):
         volume = read_dicom_series(path.parent, frame=frame, series=series)
-        four_d = True
     else:
         raise ValueError(f"volume: {path}: unknown format; expected .vol, .npy, .nrrd, .nhdr, "
                          ".nii, .nii.gz or a DICOM folder")
-    if frame not in (None, 0) and not four_d:
+    if frame not in (None, 0) and volume.metadata.get("frames", 1) == 1:
         raise ValueError(f"frame: {path} is a 3-D volume (one frame); got frame={frame}")
     if series is not None and not (path.is_dir() or name.endswith(".dcm")):
         raise ValueError(f"series: only a DICOM folder holds series; {path} is not one")
@@ -431,9 +427,11 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
         elif len(shape) == 4:
             index = (..., 0)
         elif len(shape) == 3:
+            if frame not in (None, 0):
+                raise ValueError(f"frame: {path} is a 3-D volume (one frame); got frame={frame}")
             index = ...
         else:
-            raise ValueError(f"expected a 3-D or 4-D NIfTI image, got shape {shape}")
+            raise ValueError(f"volume: {path}: expected a 3-D or 4-D NIfTI image, got shape {shape}")
         proxy = image.dataobj
         slope = getattr(proxy, "slope", 1.0)
         inter = getattr(proxy, "inter", 0.0)
@@ -696,6 +694,8 @@ def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | No
     pick = 0
     if per_position > 1:
         pick = _pick_frame(folder, per_position, frame)
+    elif frame not in (None, 0):
+        raise ValueError(f"frame: {folder} is a 3-D volume (one frame); got frame={frame}")
     chosen = [frames[sorted(s, key=lambda i: frames[i].order)[pick]] for s in stacks]
     first_frame = chosen[0]
     rows, cols = (int(first.Rows), int(first.Columns))

@@ -160,7 +160,7 @@ def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float
 
     right, up, forward = view_axes(view, azimuth, elevation)
     if neurological:
-        right = -right
+        right = 0.0 - right  # (0.0 - 0.0 is +0.0: no "-0" in headers)
     return {"right": right, "up": up, "forward": forward, "labels": view_labels(right, up)}
 
 

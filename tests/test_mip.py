@@ -592,7 +592,7 @@ def test_cli_labels_exr_patient_axes_frames_and_warnings(cli, tmp_path):
     meta = read_exr(tmp_path / "s.exr").metadata
     assert meta["patient_frame"] == "LPS" and meta["display"] == "neurological"
     assert (meta["image_left"], meta["image_right"], meta["image_top"], meta["image_bottom"]) == ("P", "A", "S", "I")
-    assert meta["view_forward"] == "-1,0,0" and meta["view_right"] == "-0,-1,-0"
+    assert meta["view_forward"] == "-1,0,0" and meta["view_right"] == "0,-1,0"
     four_d = os.path.join(data_path, "example4d.nii.gz")
     result = cli("mip", four_d, "-o", tmp_path / "f.png", "--size", "16")
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1

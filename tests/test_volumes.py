@@ -398,6 +398,10 @@ def test_4d_nifti_needs_a_frame(tmp_path):
         load_volume(_npy(tmp_path), frame=1)
     with pytest.raises(ValueError, match="frame: expected a non-negative integer"):
         load_volume(tmp_path / "t.nii", frame=-1)
+    nibabel.save(nibabel.Nifti1Image(data[..., 0], np.eye(4)), str(tmp_path / "3d.nii"))
+    np.testing.assert_array_equal(load_volume(tmp_path / "3d.nii", frame=0).data, data[..., 0].T)
+    with pytest.raises(ValueError, match="3-D volume .one frame.; got frame=1"):
+        load_volume(tmp_path / "3d.nii", frame=1)
 
 
 def _npy(tmp_path):
