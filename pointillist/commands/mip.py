@@ -135,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {names[0]}" + (f" ... {names[-1]} ({len(names)} frames)" if len(names) > 1 else ""))
     volume, info = result.volume, result.texture
     nx, ny, nz = volume.shape_xyz
-    print(f"volume {nx}x{ny}x{nz} {volume.data.dtype} spacing {', '.join(f'{s:g}' for s in volume.spacing)}; "
+    axes = f"voxel axes {volume.axis_codes}" if volume.oriented else "no orientation (voxel axes taken as LPS)"
+    print(f"volume {nx}x{ny}x{nz} {volume.data.dtype} spacing {', '.join(f'{s:g}' for s in volume.spacing)}, {axes}; "
           f"texture {info['precision']} ({info['nbytes'] / 2**20:.1f} MiB, "
           f"{'exact' if info['exact'] else 'rounded'})")
     print(f"time: load {result.load_seconds:.2f} s, project {result.project_seconds:.2f} s "
