@@ -1,12 +1,14 @@
-"""Shared fixtures: the Mitsuba variant with pointillist's plugins, and a CLI runner."""
+"""Shared fixtures: the Mitsuba variant with pointillist's plugins, a CLI runner, a per-test RNG."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,3 +42,10 @@ def run_cli(*args: str, cwd: str | os.PathLike | None = None, env: dict | None =
 def cli():
     """The :func:`run_cli` function (subprocess CLI runner)."""
     return run_cli
+
+
+@pytest.fixture
+def rng(request) -> np.random.Generator:
+    """A generator seeded from the test's node id: the same numbers whether the test runs alone,
+    in a file or in the whole suite, and in any order (never a module-level generator)."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
