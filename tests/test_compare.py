@@ -120,6 +120,22 @@ def test_image_errors_hand_worked():
         image_errors(np.ones((3, 3, 3)), np.ones((4, 3, 3)))
 
 
+def test_flip_is_flip_evaluators_hdr_flip_of_the_reference_and_the_test(rng):
+    """``image_errors(image, reference)["flip"]`` is flip-evaluator's mean HDR-FLIP with the
+    reference first; on this HDR pair swapping the arguments or using LDR-FLIP changes the value."""
+    import flip_evaluator
+
+    reference = np.ones((24, 32, 3), np.float32) * 0.2
+    reference[4:12, 6:20] = [4.0, 2.0, 0.5]  # a bright HDR patch (sets HDR-FLIP's exposure range)
+    image = np.clip(reference + rng.normal(0, 0.05, reference.shape), 0, None).astype(np.float32)
+    image[16:20, 2:30] = [40.0, 10.0, 1.0]  # a brighter feature only the test image has
+    expected = float(flip_evaluator.evaluate(reference, image, "HDR", applyMagma=False)[1])
+    swapped = float(flip_evaluator.evaluate(image, reference, "HDR", applyMagma=False)[1])
+    ldr = float(flip_evaluator.evaluate(np.clip(reference, 0, 1), np.clip(image, 0, 1), "LDR", applyMagma=False)[1])
+    assert min(abs(expected - swapped), abs(expected - ldr)) > 0.01 * expected  # the pair tells them apart
+    assert image_errors(image, reference)["flip"] == pytest.approx(expected, rel=1e-6)
+
+
 def test_flip_against_flip_reference_ldr_agrees_in_order():
     """FLIP grows with the error (independent check: more noise, larger FLIP)."""
     rng = np.random.default_rng(0)
@@ -176,19 +192,25 @@ def test_render_one_warms_up_once_per_method(mi, tmp_path, monkeypatch):
     import pointillist.compare as compare
     import pointillist.scene as scene_module
 
-    calls = []
+    calls, timings = [], []
     real = scene_module.timed_render
 
     def spy(scene, **kwargs):
         calls.append(kwargs["seed"])
         image, timing = real(scene, **kwargs)
-        return image, (dataclasses.replace(timing, compile=0.25) if len(calls) == 1 else timing)
+        timing = dataclasses.replace(timing, compile=0.25) if len(calls) == 1 else timing
+        timings.append(timing)
+        return image, timing
 
     monkeypatch.setattr(scene_module, "timed_render", spy)
     monkeypatch.setattr(compare, "_WARMED", set())
     params = {"res": "8"}
     first = compare.render_one(str(EDGES), "jitter", 2, 0, params, str(tmp_path))
-    assert calls == [0, 0] and first.compile >= 0.25 and first.time <= first.total
+    assert calls == [0, 0]
+    # the record is the timed (second) render, with the warm-up's compile time added
+    timed = timings[1]
+    assert first.compile == timed.compile + 0.25 and first.total == timed.total
+    assert first.time == max(timed.total - timed.compile, 0.0)
     compare.render_one(str(EDGES), "jitter", 2, 1, params, str(tmp_path))
     assert calls == [0, 0, 1]
     compare.render_reference(str(EDGES), params, str(tmp_path), 4)
@@ -203,10 +225,12 @@ def test_render_one_writes_and_reuses(mi, tmp_path):
     from pointillist.compare import render_one, task_paths
 
     params = {"res": "12"}
-    record = render_one(str(EDGES), "jitter", 4, 0, params, str(tmp_path))
+    record = render_one(str(EDGES), "jitter", 4, 0, params, str(tmp_path), warm_up=False)
     assert isinstance(record, RenderRecord) and not record.cached
     assert record.spp == 4 and (record.width, record.height) == (12, 12)
-    assert record.total >= record.compile >= 0 and record.time >= 0
+    # Without a warm-up, by definition: time = total - compile (compile is clamped to the span).
+    # (With a warm-up its compile is added to ``compile``: no relation to ``total`` holds.)
+    assert record.time == max(record.total - record.compile, 0.0) and record.compile <= record.total
     exr, js = task_paths(tmp_path, Task("jitter", 4, 0), record.scene_key)
     assert record.exr == f"{record.scene_key}/{exr.name}"
     image, meta, _ = read_exr(exr)
@@ -247,7 +271,7 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
     assert {r["method"] for r in rows} == {"grid", "jitter", "random", "poisson"}
     for r in rows:
         assert (out / r["exr"]).is_file()
-        assert float(r["rmse"]) > 0 and float(r["flip"]) > 0 and float(r["time"]) >= 0
+        assert float(r["rmse"]) > 0 and float(r["flip"]) > 0
     text = (out / "results.md").read_text()
     assert "Equal-time ranking" in text and "MSE vs spp" in text and "Equal-error ranking" in text
     assert "| jitter | 4 spp | 4 |" in text  # the setting column

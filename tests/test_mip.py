@@ -9,7 +9,7 @@ import pytest
 
 from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
-RNG = np.random.default_rng(8)
+RNG = np.random.default_rng(8)  # module-level data only (drawn once at import); tests use the `rng` fixture
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +62,8 @@ def test_trilinear_native_view_matches_numpy_max(project, view):
     np.testing.assert_allclose(image, _native(view)(VOL, np.min), atol=2e-3)
 
 
-def test_sixteen_bit_volume_kept_exact_in_half_precision(mi, project):
-    vol = RNG.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
+def test_sixteen_bit_volume_kept_exact_in_half_precision(rng, mi, project):
+    vol = rng.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
     vol[0, 0, 0], vol[1, 1, 1] = 0, 4095
     integrator = mi.load_dict({"type": "mip", "interpolation": "nearest"})
     integrator.set_volume(vol)
