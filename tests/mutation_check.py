@@ -91,15 +91,22 @@ HALF_WIDTH = "half_width = dr.opaque(mi.Float, self.quantile) * dr.sqrt(var / nv
 VAR = "var = dr.maximum(s2 - s1 * s1 / nv, 0.0) / dr.maximum(valid_n - 1.0, 1.0)"
 MORE = "more = ~converged & (count + spp <= limit)"
 CONVERGED = "(half_width <= dr.opaque(mi.Float, self.max_error) * dr.abs(mean))"
-FLIP_CALL = 'flip_evaluator.evaluate(clean(r), clean(x), "HDR", applyMagma=False)'
+FLIP_REFERENCE = "reference = clean(r)"
+FLIP_CALL = 'flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,'
 QUANTISER = "thresholds = work[:-1] + (work[1:] - work[:-1]) * (level / 255.0)"
 THRESHOLD_RULE = "values = dr.select(tensor.array >= dr.opaque(Float, float(level))"
 RANGE_SPLIT = "flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)"
 
 MUTANTS = [
     # -- error-diffusion tables (the issue's two, then the others)
-    Mutant("jjn_7_5", "Jarvis-Judice-Ninke weights 7 and 5 swapped", [(JJN, _swap(JJN, "7", "5"))], DITHER, True),
-    Mutant("stucki_8_4", "Stucki weights 8 and 4 swapped", [(STUCKI, _swap(STUCKI, "8", "4"))], DITHER, True),
+    Mutant("jjn_7_5", "Jarvis-Judice-Ninke: every 7 and 5 swapped", [(JJN, _swap(JJN, "7", "5"))], DITHER, True),
+    Mutant("stucki_8_4", "Stucki: every 8 and 4 swapped", [(STUCKI, _swap(STUCKI, "8", "4"))], DITHER, True),
+    Mutant("jjn_7_5_first_row", "Jarvis-Judice-Ninke: the 7 and 5 right of the pixel swapped (sum kept)",
+           [(JJN, JJN.replace("(0, 1, 7), (0, 2, 5)", "(0, 1, 5), (0, 2, 7)"))], DITHER, True),
+    Mutant("stucki_8_4_first_row", "Stucki: the 8 and 4 right of the pixel swapped (sum kept)",
+           [(STUCKI, STUCKI.replace("(0, 1, 8), (0, 2, 4)", "(0, 1, 4), (0, 2, 8)"))], DITHER, True),
+    Mutant("stucki_8_4_below", "Stucki: the 8 below and a 4 below-right swapped (sum kept)",
+           [(STUCKI, STUCKI.replace("(1, 0, 8), (1, 1, 4)", "(1, 0, 4), (1, 1, 8)"))], DITHER),
     Mutant("fs_7_5", "Floyd-Steinberg 7 and 5 swapped", [(FS, _swap(FS, "7", "5"))], DITHER),
     Mutant("fs_3_1", "Floyd-Steinberg 3 and 1 swapped", [(FS, _swap(FS, "3", "1"))], DITHER),
     Mutant("jjn_divisor", "Jarvis-Judice-Ninke divisor 48 -> 42", [(JJN, JJN[:-2] + "42")], DITHER),
@@ -147,9 +154,11 @@ MUTANTS = [
            [(RANGE_SPLIT, RANGE_SPLIT.replace("> threshold", ">= threshold"))], RANGE),
     # -- FLIP
     Mutant("flip_swapped", "FLIP: reference and test arguments swapped",
-           [(FLIP_CALL, 'flip_evaluator.evaluate(clean(x), clean(r), "HDR", applyMagma=False)')], FLIP, True),
-    Mutant("flip_ldr", "FLIP: LDR instead of HDR",
-           [(FLIP_CALL, 'flip_evaluator.evaluate(clean(r), clean(x), "LDR", applyMagma=False)')], FLIP, True),
+           [(FLIP_REFERENCE, "reference = clean(x)"),
+            (FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(reference, clean(r)"))], FLIP, True),
+    Mutant("flip_swapped_call", "FLIP: reference and test swapped in the call only (exposures still from the reference)",
+           [(FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(clean(x), reference"))], FLIP),
+    Mutant("flip_ldr", "FLIP: LDR instead of HDR", [(FLIP_CALL, FLIP_CALL.replace('"HDR"', '"LDR"'))], FLIP, True),
 ]
 
 

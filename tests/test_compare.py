@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -134,6 +136,28 @@ def test_flip_is_flip_evaluators_hdr_flip_of_the_reference_and_the_test(rng):
     ldr = float(flip_evaluator.evaluate(np.clip(reference, 0, 1), np.clip(image, 0, 1), "LDR", applyMagma=False)[1])
     assert min(abs(expected - swapped), abs(expected - ldr)) > 0.01 * expected  # the pair tells them apart
     assert image_errors(image, reference)["flip"] == pytest.approx(expected, rel=1e-6)
+
+
+def test_flip_of_a_black_or_constant_reference_does_not_end_the_process():
+    # flip-evaluator calls exit() when its exposure range is empty (a black reference, or a
+    # constant one where rounding puts the start above the stop); run in a subprocess so that a
+    # regression shows as a failed assertion rather than a vanished pytest.
+    code = (
+        "import numpy as np\n"
+        "from pointillist.compare import image_errors\n"
+        "for ref in (np.zeros((4, 4, 3)), np.full((4, 4, 3), 1e-7), np.full((4, 4, 3), 0.5)):\n"
+        "    print(image_errors(ref + 0.05, ref)['flip'], image_errors(np.full((4, 4, 3), np.nan), ref)['flip'])\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    values = [float(v) for v in result.stdout.split()]
+    assert len(values) == 6 and all(0 <= v <= 1 for v in values)
+    assert values[1] == 0  # black test image against a black reference: no error
+    # where flip-evaluator does not exit (0.5), the value is its own default one
+    import flip_evaluator
+
+    ref = np.full((4, 4, 3), 0.5, np.float32)
+    assert values[4] == pytest.approx(flip_evaluator.evaluate(ref, ref + 0.05, "HDR", applyMagma=False)[1], rel=1e-4)
 
 
 def test_flip_against_flip_reference_ldr_agrees_in_order():
