@@ -349,12 +349,12 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     """
     levels = _levels(levels)
     max_value = _positive(max_value, "max_value")
-    n, top, step = _opaque(levels), _opaque(max_value), _opaque(max_value / (levels - 1))
+    n, top = _opaque(levels), _opaque(max_value)
     last = _opaque(levels - 1)
 
     def curve(x: Float) -> Float:
         k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
-        return k * step
+        return k * top / last  # not k * step: the top level must be max_value exactly (21 * (255 / 21) > 255)
 
     return _pointwise(image, curve, max_value, "quantize")
 

@@ -485,6 +485,11 @@ def _kernels(function):
     return [k for k in history if k["type"] == dr.KernelType.JIT]
 
 
+def _hashes(function):
+    """The hashes of the JIT kernels ``function`` launches (the same hash: no recompilation)."""
+    return {k["hash"] for k in _kernels(function)}
+
+
 def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng):
     """Histogram pass (n/4 lanes) + table pass (n lanes); new arguments reuse the compiled kernels."""
     image = rng.integers(0, 256, (64, 96), dtype=np.uint8)
@@ -493,14 +498,24 @@ def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng):
     per_pixel = sorted(k["size"] for k in kernels if k["size"] in (image.size // 4, image.size))
     assert per_pixel == [image.size // 4, image.size]
     assert all(k["size"] <= 65536 for k in kernels if k["size"] not in per_pixel)  # 256 x 256 pair table
-    other = rng.integers(0, 256, (64, 96), dtype=np.uint8)
-    assert all(k["cache_hit"] for k in _kernels(lambda: a(equalize_histogram(other))))
+    # Recompilation is checked by kernel hashes, not ``cache_hit`` (which also counts kernels
+    # loaded from ~/.drjit and so depends on what ran on this machine before).
+    # The uint8 histogram pass (which reads the caller's bytes in place) comes in two variants
+    # that alternate with the input buffer (measured); anything data-dependent baked into a
+    # kernel would give a new hash for each of these six images.
+    runs = [_kernels(lambda: a(equalize_histogram(rng.integers(0, 256, (64, 96), dtype=np.uint8))))
+            for _ in range(6)]
+    assert len({tuple(k["size"] for k in run) for run in runs}) == 1
+    assert all(len({k["hash"] for k in launch}) <= 2 for launch in zip(*runs))
     grey = rng.random((32, 32), dtype=np.float32) * 255
-    gamma(grey, 2.2), contrast_stretch(grey, 10, 20, 200, 210), lut(image, np.arange(256))
-    for call in (lambda: gamma(grey, 0.7), lambda: contrast_stretch(grey, 30, 5, 99, 250),
-                 lambda: lut(image, np.arange(256)[::-1]), lambda: gamma(image, 1.9)):
-        kernels = _kernels(lambda: a(call()))
-        assert kernels and all(k["cache_hit"] for k in kernels)
+    pairs = ((lambda: gamma(grey, 2.2), lambda: gamma(grey, 0.7)),
+             (lambda: contrast_stretch(grey, 10, 20, 200, 210), lambda: contrast_stretch(grey, 30, 5, 99, 250)),
+             (lambda: lut(image, np.arange(256)), lambda: lut(image, np.arange(256)[::-1])),
+             (lambda: gamma(image, 2.2), lambda: gamma(image, 1.9)))
+    for first, then in pairs:
+        compiled = _hashes(lambda: a(first()))
+        again = _hashes(lambda: a(then()))
+        assert again and again <= compiled
 
 
 def test_tonemap_fixed_curves_are_one_pass(rng):
