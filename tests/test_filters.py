@@ -277,6 +277,8 @@ def test_bad_arguments():
 
 # --- post steps ---------------------------------------------------------------------------------
 def test_post_steps_registered_and_run(rng, tmp_path, cli):
+    from PIL import Image
+
     from pointillist.steps import parse_steps
 
     pipeline = parse_steps("sobel;normalize;threshold:level=128;median:5;correlate:gaussian,border=reflect;"
@@ -291,5 +293,10 @@ def test_post_steps_registered_and_run(rng, tmp_path, cli):
     write_png(source, np.tile(np.linspace(0, 255, 16, dtype=np.float32), (12, 1)), srgb=False, max_value=255.0)
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr
+    ramp = np.asarray(Image.open(source).convert("L")).astype(np.float32)
+    expected = out(F.threshold(F.normalize(F.sobel(ramp)), 128))
+    written = np.asarray(Image.open(tmp_path / "edges.png").convert("L")).astype(np.float32)
+    np.testing.assert_array_equal(written, expected)
+    assert 0 < (written == 255).mean() < 1  # edges at the borders only (zero padding), not all
     bad = cli("post", source, "-o", tmp_path / "bad.png", "--steps", "correlate:sobel_z")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
