@@ -280,6 +280,7 @@ def test_render_one_is_picklable():
 
 
 # --------------------------------------------------------------------------------- CLI
+@pytest.mark.slow  # ~30 s: a 24-render sweep, then resumed
 def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
     out = tmp_path / "cmp"
     args = ["compare", EDGES, "-D", "res=16", "--spp", "1,4,16", "--reference-spp", "64",

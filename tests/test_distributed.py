@@ -386,6 +386,7 @@ def test_render_cli_bad_distributed_options(cli, tmp_path, argv, message):
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow  # ~25 s: a compare sweep twice, serial and on a cluster
 def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
     """`compare --workers 2` renders each (sampler, spp, seed) as a task: same renders and errors as serial."""
     import csv

@@ -61,6 +61,7 @@ def test_intensity_thresholds_are_the_smallest_float32_meeting_the_rule(name):
     assert np.all((thresholds > 0) & (thresholds < 255))
 
 
+@pytest.mark.slow  # ~15 s: every value at every position of a 64 x 64 mask
 @pytest.mark.parametrize("name", list(TEMPLATES))
 def test_every_8bit_value_at_every_template_position(name):
     template = TEMPLATES[name]
