@@ -131,8 +131,8 @@ MUTANTS = [
     Mutant("exr_rg", "R and G swapped in both write_exr and read_exr",
            [_exr_write("GRBA"), _exr_read("GRBA")], IO),
     Mutant("exr_ra", "R and A swapped in both write_exr and read_exr (RGBA only)",
-           [(EXR_WRITE, "channels: dict[str, np.ndarray] = {names: np.ascontiguousarray(pixels[..., [3, 1, 2, 0]] "
-                        "if pixels.ndim == 3 and pixels.shape[2] == 4 else pixels)}"),
+           [(EXR_WRITE, ("channels: dict[str, np.ndarray] = {names: np.ascontiguousarray(pixels[..., [3, 1, 2, 0]] "
+                         "if pixels.ndim == 3 and pixels.shape[2] == 4 else pixels)}")),
             (EXR_READ, 'image = take("A", "G", "B", "R") if "A" in channels else take("R", "G", "B")')], IO),
     Mutant("exr_rb_write", "R and B swapped in write_exr only", [_exr_write("BGRA")], IO),
     Mutant("exr_rb_read", "R and B swapped in read_exr only", [_exr_read("BGRA")], IO),
@@ -188,7 +188,8 @@ def _run_pytest(selection: list[str], timeout: float) -> tuple[str, list[str], f
                    "--timeout", str(int(timeout)), *selection]
         start = time.perf_counter()
         try:
-            result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout + 60)
+            result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True,
+                                    timeout=timeout + 60, check=False)
         except subprocess.TimeoutExpired:
             return "timeout", [], time.perf_counter() - start
     seconds = time.perf_counter() - start

@@ -18,7 +18,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-
 from pointillist.imaging import colour, dither, filters, resample, tone
 
 SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=None,

@@ -12,8 +12,8 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 data = pytest.importorskip("skimage.data")
 
-from pointillist.imaging import colour, filters, resample, tone  # noqa: E402
-from pointillist.imaging.volumes import load_volume  # noqa: E402
+from pointillist.imaging import colour, filters, resample, tone
+from pointillist.imaging.volumes import load_volume
 
 
 @pytest.fixture(scope="module")

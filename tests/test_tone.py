@@ -505,7 +505,7 @@ def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng, aligned):
     compiled = _hashes(lambda: a(equalize_histogram(aligned(image))))
     for _ in range(3):
         other = aligned(rng.integers(0, 256, (64, 96), dtype=np.uint8))
-        assert _hashes(lambda: a(equalize_histogram(other))) <= compiled
+        assert _hashes(lambda other=other: a(equalize_histogram(other))) <= compiled
     grey = rng.random((32, 32), dtype=np.float32) * 255
     grey, image = aligned(grey), aligned(image)
     pairs = ((lambda: gamma(grey, 2.2), lambda: gamma(grey, 0.7)),
@@ -513,8 +513,8 @@ def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng, aligned):
              (lambda: lut(image, np.arange(256)), lambda: lut(image, np.arange(256)[::-1])),
              (lambda: gamma(image, 2.2), lambda: gamma(image, 1.9)))
     for first, then in pairs:
-        compiled = _hashes(lambda: a(first()))
-        again = _hashes(lambda: a(then()))
+        compiled = _hashes(lambda first=first: a(first()))
+        again = _hashes(lambda then=then: a(then()))
         assert again and again <= compiled
 
 
