@@ -1,19 +1,19 @@
 """Real data shipped by the packages: scikit-image's images through the imaging operations
 (against OpenCV and scikit-image), nibabel's and pydicom's test files through the volume readers
-(against nibabel and pydicom themselves)."""
+(against nibabel and pydicom themselves). All are test dependencies: imported, not skipped."""
 
 from __future__ import annotations
 
 import shutil
 
+import cv2
+import nibabel
 import numpy as np
+import pydicom
 import pytest
-
-cv2 = pytest.importorskip("cv2")
-data = pytest.importorskip("skimage.data")
-
 from pointillist.imaging import colour, filters, resample, tone
 from pointillist.imaging.volumes import load_volume
+from skimage import data
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,6 @@ def test_equalize_histogram_agrees_with_opencv_on_camera(camera):
 # -- volume readers on the packages' own files ---------------------------------------------------
 
 def test_nibabel_anatomical_nii():
-    nibabel = pytest.importorskip("nibabel")
     from nibabel.testing import data_path
 
     path = f"{data_path}/anatomical.nii"
@@ -104,7 +103,6 @@ def test_nibabel_anatomical_nii():
 
 
 def test_nibabel_example4d_is_refused():
-    pytest.importorskip("nibabel")
     from nibabel.testing import data_path
 
     with pytest.raises(ValueError, match="3-D NIfTI"):
@@ -112,7 +110,6 @@ def test_nibabel_example4d_is_refused():
 
 
 def test_pydicom_ct_small(tmp_path):
-    pydicom = pytest.importorskip("pydicom")
     from pydicom.data import get_testdata_file
     from pydicom.pixels import apply_modality_lut
 
