@@ -344,12 +344,11 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     levels = _levels(levels)
     max_value = _positive(max_value, "max_value")
     n, top = opaque_scalar(Float, levels), opaque_scalar(Float, max_value)
-    step = opaque_scalar(Float, max_value / (levels - 1))
     last = opaque_scalar(Float, levels - 1)
 
     def curve(x: Float) -> Float:
         k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
-        return k * step
+        return k * top / last  # not k * step: the top level must be max_value exactly (21 * (255 / 21) > 255)
 
     return _pointwise(image, curve, max_value, "quantize")
 

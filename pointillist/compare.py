@@ -303,8 +303,37 @@ def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
     def clean(a):
         return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
 
-    error_map, mean, _ = flip_evaluator.evaluate(clean(r), clean(x), "HDR", applyMagma=False)
+    reference = clean(r)
+    error_map, mean, _ = flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,
+                                                 **_flip_exposures(reference))
     return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
+
+
+def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
+    """HDR-FLIP's own exposure range, except where flip-evaluator would exit the process.
+
+    flip-evaluator takes start = log2(x_max / Y_max) and stop = log2(x_max / Y_median) from the
+    reference's luminance and calls ``exit`` ("Start exposure must be smaller than stop exposure!")
+    when rounding puts start above stop (a constant reference of 1e-7) or the reference is black.
+    In those cases (median luminance = maximum) both are passed explicitly as the one exposure
+    log2(x_max / Y_max) (0 for a black reference), which is what flip-evaluator uses when they tie.
+    """
+    luminance = reference @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    y_max, y_median = float(luminance.max()), float(np.median(luminance))
+    if y_median < y_max * (1 - 1e-5):
+        return {}
+    exposure = math.log2(_FLIP_ACES_X_MAX / y_max) if y_max > 0 else 0.0
+    return {"parameters": {"startExposure": exposure, "stopExposure": exposure}}
+
+
+def _aces_x_max(t: float = 0.85) -> float:
+    """HDR-FLIP's x_max: where the ACES fit (with FLIP's 0.6 pre-exposure) reaches t (Andersson et al. 2021)."""
+    k0, k1, k2, k3, k4, k5 = 0.36 * 2.51, 0.6 * 0.03, 0.0, 0.36 * 2.43, 0.6 * 0.59, 0.14
+    c0, c1 = (k1 - k4 * t) / (k0 - k3 * t), (k2 - k5 * t) / (k0 - k3 * t)
+    return -0.5 * c0 + math.sqrt(0.25 * c0 * c0 - c1)
+
+
+_FLIP_ACES_X_MAX = _aces_x_max()
 
 
 # ------------------------------------------------------------------------------ sweep

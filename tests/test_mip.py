@@ -9,7 +9,7 @@ import pytest
 
 from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
-RNG = np.random.default_rng(8)
+RNG = np.random.default_rng(8)  # module-level data only (drawn once at import); tests use the `rng` fixture
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +62,8 @@ def test_trilinear_native_view_matches_numpy_max(project, view):
     np.testing.assert_allclose(image, _native(view)(VOL, np.min), atol=2e-3)
 
 
-def test_sixteen_bit_volume_kept_exact_in_half_precision(mi, project):
-    vol = RNG.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
+def test_sixteen_bit_volume_kept_exact_in_half_precision(rng, mi, project):
+    vol = rng.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
     vol[0, 0, 0], vol[1, 1, 1] = 0, 4095
     integrator = mi.load_dict({"type": "mip", "interpolation": "nearest"})
     integrator.set_volume(vol)
@@ -403,8 +403,21 @@ def test_cli_turntable_writes_frames_and_gif(cli, tmp_path):
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in tmp_path.glob("t*")) == ["t.gif", "t_000.png", "t_001.png", "t_002.png"]
     import imageio.v2 as imageio
+    from PIL import Image
 
-    assert len(imageio.mimread(tmp_path / "t.gif")) == 3
+    frames = [np.asarray(Image.open(tmp_path / f"t_{k:03d}.png").convert("RGB")).astype(float) for k in range(3)]
+    assert all(frame.shape == (24, 24, 3) for frame in frames)
+    # frame k is the view at azimuth 120 k: frame 0 is the plain oblique view, and the
+    # off-centre blob moves between frames
+    single = cli("mip", tmp_path / "v.npy", "--size", "24", "--elevation", "10", "--azimuth", "0",
+                 "--colormap", "inferno", "-o", tmp_path / "single.png")
+    assert single.returncode == 0, single.stderr
+    np.testing.assert_array_equal(frames[0], np.asarray(Image.open(tmp_path / "single.png").convert("RGB")))
+    assert np.abs(frames[1] - frames[0]).mean() > 1 and np.abs(frames[2] - frames[1]).mean() > 1
+    gif = imageio.mimread(tmp_path / "t.gif")
+    assert len(gif) == 3
+    for frame, shown in zip(frames, gif):  # the GIF's palette may round colours a little
+        assert np.abs(np.asarray(shown)[..., :3].astype(float) - frame).mean() < 3
 
 
 @pytest.mark.parametrize("args,message", [

@@ -9,11 +9,9 @@ import pointillist.imaging.volumes as volumes
 from pointillist.imaging.volumes import (Volume, load_volume, read_vol, shepp_logan_phantom, volume_texture,
                                  write_vol)
 
-RNG = np.random.default_rng(12)
 
-
-def test_vol_round_trip_and_mitsuba_reads_it(mi, tmp_path):
-    data = RNG.random((3, 4, 5)).astype(np.float32)
+def test_vol_round_trip_and_mitsuba_reads_it(rng, mi, tmp_path):
+    data = rng.random((3, 4, 5)).astype(np.float32)
     write_vol(tmp_path / "a.vol", Volume(data, (0.5, 1.0, 2.0)))
     vol = load_volume(tmp_path / "a.vol")
     np.testing.assert_array_equal(vol.data, data)
@@ -24,8 +22,8 @@ def test_vol_round_trip_and_mitsuba_reads_it(mi, tmp_path):
     np.testing.assert_array_equal(np.asarray(params[key])[..., 0], data)  # Mitsuba's layout (Z, Y, X)
 
 
-def test_mitsuba_written_vol_is_read(mi, tmp_path):
-    data = RNG.random((2, 3, 4)).astype(np.float32)
+def test_mitsuba_written_vol_is_read(rng, mi, tmp_path):
+    data = rng.random((2, 3, 4)).astype(np.float32)
     mi.VolumeGrid(data[..., None]).write(str(tmp_path / "m.vol"))
     np.testing.assert_array_equal(read_vol(tmp_path / "m.vol").data, data)
 
@@ -44,8 +42,8 @@ def test_corrupt_vol_files_raise(tmp_path, damage, message):
 
 
 @pytest.mark.parametrize("dtype", [np.int16, np.uint16, np.float32, ">i2"])
-def test_npy_round_trip_keeps_dtype(tmp_path, dtype):
-    data = RNG.integers(-1000, 3000, size=(4, 5, 6)).astype(dtype)
+def test_npy_round_trip_keeps_dtype(rng, tmp_path, dtype):
+    data = rng.integers(-1000, 3000, size=(4, 5, 6)).astype(dtype)
     if np.dtype(dtype).kind == "u":
         data = np.abs(data.astype(np.int32)).astype(dtype)
     np.save(tmp_path / "v.npy", data)
@@ -72,10 +70,10 @@ def test_npy_errors(tmp_path):
         load_volume(tmp_path / "v.npy", spacing=(1, 0, 1))
 
 
-def test_nrrd_round_trip_with_spacing(tmp_path):
+def test_nrrd_round_trip_with_spacing(rng, tmp_path):
     import nrrd
 
-    data = RNG.integers(-1024, 2000, size=(4, 5, 6)).astype(np.int16)  # (Z, Y, X)
+    data = rng.integers(-1024, 2000, size=(4, 5, 6)).astype(np.int16)  # (Z, Y, X)
     header = {"space": "left-posterior-superior", "space directions": np.diag([0.7, 0.8, 2.5]),
               "space origin": np.array([-10.0, 5.0, 30.0])}
     nrrd.write(str(tmp_path / "v.nrrd"), data, header, index_order="C")
@@ -88,10 +86,10 @@ def test_nrrd_round_trip_with_spacing(tmp_path):
         load_volume(tmp_path / "bad.nrrd")
 
 
-def test_nifti_round_trip_uses_affine_spacing(tmp_path):
+def test_nifti_round_trip_uses_affine_spacing(rng, tmp_path):
     import nibabel
 
-    data_ijk = RNG.integers(0, 4000, size=(6, 5, 4)).astype(np.int16)  # NIfTI order (i=x, j=y, k=z)
+    data_ijk = rng.integers(0, 4000, size=(6, 5, 4)).astype(np.int16)  # NIfTI order (i=x, j=y, k=z)
     affine = np.diag([0.5, 0.9, 3.0, 1.0])
     affine[:3, 3] = (1.0, 2.0, 3.0)
     nibabel.save(nibabel.Nifti1Image(data_ijk, affine), str(tmp_path / "v.nii.gz"))
@@ -104,7 +102,7 @@ def test_nifti_round_trip_uses_affine_spacing(tmp_path):
         load_volume(tmp_path / "bad.nii")
 
 
-def _write_dicom_series(folder, hu, *, spacing=(0.6, 0.7), dz=2.5, slope=1.0, intercept=-1024.0):
+def _write_dicom_series(rng, folder, hu, *, spacing=(0.6, 0.7), dz=2.5, slope=1.0, intercept=-1024.0):
     """One CT slice per file, written in shuffled order with pydicom; stored = (HU - b) / m."""
     import pydicom
     from pydicom.dataset import FileDataset, FileMetaDataset
@@ -112,7 +110,7 @@ def _write_dicom_series(folder, hu, *, spacing=(0.6, 0.7), dz=2.5, slope=1.0, in
 
     folder.mkdir()
     series = generate_uid()
-    order = RNG.permutation(hu.shape[0])
+    order = rng.permutation(hu.shape[0])
     for n, z in enumerate(order):
         meta = FileMetaDataset()
         meta.MediaStorageSOPClassUID = CTImageStorage
@@ -135,9 +133,9 @@ def _write_dicom_series(folder, hu, *, spacing=(0.6, 0.7), dz=2.5, slope=1.0, in
         pydicom.dcmwrite(str(folder / f"s{n}.dcm"), ds, enforce_file_format=True)
 
 
-def test_dicom_series_sorted_and_rescaled_to_hu(tmp_path):
-    hu = RNG.integers(-1024, 2000, size=(5, 6, 7)).astype(np.int16)
-    _write_dicom_series(tmp_path / "ct", hu)
+def test_dicom_series_sorted_and_rescaled_to_hu(rng, tmp_path):
+    hu = rng.integers(-1024, 2000, size=(5, 6, 7)).astype(np.int16)
+    _write_dicom_series(rng, tmp_path / "ct", hu)
     (tmp_path / "ct" / "notes.txt").write_text("not a DICOM file")
     vol = load_volume(tmp_path / "ct")
     np.testing.assert_array_equal(vol.data, hu)
@@ -146,20 +144,20 @@ def test_dicom_series_sorted_and_rescaled_to_hu(tmp_path):
     assert vol.metadata["modality"] == "CT" and vol.origin == (-50.0, -60.0, 100.0)
 
 
-def test_dicom_fractional_rescale_gives_float(tmp_path):
-    hu = RNG.integers(0, 100, size=(3, 4, 4)).astype(np.float32) * 0.5
-    _write_dicom_series(tmp_path / "ct", hu, slope=0.5, intercept=-10.0)
+def test_dicom_fractional_rescale_gives_float(rng, tmp_path):
+    hu = rng.integers(0, 100, size=(3, 4, 4)).astype(np.float32) * 0.5
+    _write_dicom_series(rng, tmp_path / "ct", hu, slope=0.5, intercept=-10.0)
     vol = load_volume(tmp_path / "ct")
     assert vol.data.dtype == np.float32
     np.testing.assert_array_equal(vol.data, hu)
 
 
-def test_dicom_errors(tmp_path):
+def test_dicom_errors(rng, tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="no DICOM slices"):
         load_volume(tmp_path / "empty")
-    hu = RNG.integers(-1024, 2000, size=(3, 6, 7)).astype(np.int16)
-    _write_dicom_series(tmp_path / "ct", hu)
+    hu = rng.integers(-1024, 2000, size=(3, 6, 7)).astype(np.int16)
+    _write_dicom_series(rng, tmp_path / "ct", hu)
     victim = sorted((tmp_path / "ct").iterdir())[0]
     victim.write_bytes(victim.read_bytes()[:-40])  # truncated pixel data
     with pytest.raises(ValueError, match="DICOM"):
@@ -192,7 +190,7 @@ def test_phantom_bad_shape(shape):
         shepp_logan_phantom(shape)
 
 
-def test_textures_are_compact_and_exact(mi):
+def test_textures_are_compact_and_exact(rng, mi):
     ct = shepp_logan_phantom(16)
     tex = volume_texture(ct)
     assert tex.precision == "half" and tex.exact and tex.nbytes == ct.size * 2
@@ -203,7 +201,7 @@ def test_textures_are_compact_and_exact(mi):
     assert volume_texture(wide).precision == "single"
     forced = volume_texture(wide, precision="half")
     assert forced.precision == "half" and not forced.exact
-    floats = volume_texture(RNG.random((2, 2, 2)).astype(np.float32))
+    floats = volume_texture(rng.random((2, 2, 2)).astype(np.float32))
     assert floats.precision == "single" and floats.nbytes == 32
     with pytest.raises(ValueError, match="filter"):
         volume_texture(ct, filter="cubic")
