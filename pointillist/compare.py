@@ -283,8 +283,8 @@ def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -
     --------
     >>> import numpy as np
     >>> ref = np.zeros((1, 2, 3), np.float32)
-    >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"]
-    array([[1., 3.]], dtype=float32)
+    >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"].tolist()
+    [[1.0, 3.0]]
     """
     maps: dict[str, np.ndarray] = {}
     image_errors(image, reference, flip=flip, maps=maps)

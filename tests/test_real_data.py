@@ -102,11 +102,15 @@ def test_nibabel_anatomical_nii():
     np.testing.assert_allclose(vol.spacing, image.header.get_zooms()[:3], rtol=1e-6)
 
 
-def test_nibabel_example4d_is_refused():
+def test_nibabel_example4d_needs_a_frame():
+    import nibabel
     from nibabel.testing import data_path
 
-    with pytest.raises(ValueError, match="3-D NIfTI"):
+    with pytest.raises(ValueError, match="4-D with 2 frames"):
         load_volume(f"{data_path}/example4d.nii.gz")
+    image = nibabel.load(f"{data_path}/example4d.nii.gz")
+    frame = load_volume(f"{data_path}/example4d.nii.gz", frame=1)
+    np.testing.assert_allclose(frame.data, np.asarray(image.dataobj[..., 1], np.float32).transpose(2, 1, 0))
 
 
 def test_pydicom_ct_small(tmp_path):
