@@ -6,6 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from pointillist.plugins.bsdfs._common import boolean_property, integer_property, spectrum_property
+from pointillist.plugins.integrators._offsets import ErrorBounds
 
 __all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME", "PLUGIN_CLASS"]
 
@@ -176,6 +177,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def sample(self, scene, sampler, ray, medium=None, active=True):
         features = inspect_scene(scene, specialize=self.specialize)
         self.features = features
+        self.bounds = ErrorBounds(scene)
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
         if self.max_depth >= 1 and features.delta_flags:
@@ -230,15 +232,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         bs, weight = bsdf.sample(ctx, si, sampler.next_1d(bounce), sampler.next_2d(bounce), bounce)
         beta = beta * weight
         bounce &= dr.any(weight != 0.0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        ray = self.bounds.spawn_ray(si, si.to_world(bs.wo), bounce)
         return L, ray, beta, depth, bounce, hit
 
     def _direct(self, scene, sampler, si, bsdf, active, features):
         """Light reflected at ``si`` straight from the emitters, with shadow rays."""
         ctx = mi.BSDFContext()
         if features.sample_one_emitter:
-            ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), True, active)
+            ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), False, active)
             ok = active & (ds.pdf != 0.0)
+            ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, ds, active=ok), ok)
             return dr.select(ok, bsdf.eval(ctx, si, si.to_local(ds.d), ok) * weight, 0.0)
         Ld = mi.Spectrum(0.0)
         for emitter in features.emitters:
@@ -248,7 +251,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 sample = sampler.next_2d(active)
             ds, weight = emitter.sample_direction(si, sample, active)
             ok = active & dr.any(weight != 0.0)
-            visible = ok & ~scene.ray_test(si.spawn_ray_to(ds.p), ok)
+            shadow_ray = self.bounds.spawn_ray_to(si, ds, self.bounds.emitter_bound_of(emitter), ok)
+            visible = ok & ~scene.ray_test(shadow_ray, ok)
             f = bsdf.eval(ctx, si, si.to_local(ds.d), visible)
             Ld += dr.select(visible, f * weight, 0.0)
         return Ld
