@@ -119,7 +119,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     At each hit: emitted radiance; the ambient term; direct light from every
     emitter through a shadow ray (``Emitter.sample_direction`` then
-    ``Scene.ray_test`` on a ray from ``spawn_ray_to``): point, spot and
+    ``Scene.ray_test``): point, spot and
     directional lights exactly, area and environment lights by one emitter
     sample per camera sample (above :data:`MAX_UNROLLED_EMITTERS` emitters one
     emitter is chosen at random per hit); reflected light is ``bsdf.eval``,
@@ -141,12 +141,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     emitters there are no shadow rays and no emission lookups; ambient 0 skips
     the ambient term, and ``max_depth`` 0 skips all shading.
 
-    Edges: rays leave surfaces through Mitsuba's ``spawn_ray`` /
-    ``spawn_ray_to``, whose offsets scale with the magnitude of the hit
-    position, so scenes far from the origin (1e5) or tiny (1e-4) render
-    without self-intersection acne. Normals facing away are handled by each
-    BSDF (one-sided BSDFs return black). A ray whose throughput becomes 0
-    stops early.
+    Edges: reflected, refracted and shadow rays leave a surface from a point
+    moved off it by a bound on the floating-point error of the hit, along the
+    geometric normal, to the side the ray leaves from (pbrt-v4's method; see
+    :mod:`pointillist.plugins.integrators._offsets`): a few float32 roundings
+    of the hit shape's magnitude, so the offsets scale with the scene, with no
+    absolute floor (Mitsuba 3.9.1's ``spawn_ray`` adds 9e-5 whatever the
+    unit). Shadow rays end just short of their target, itself moved off the
+    light's surface. Scenes scaled by 1e-6 .. 1e6 render the same image, and
+    moved 1e3 from the origin change 0.1 % of the pixels (float32 positions
+    there are 6e-5 apart: tests/test_stiff.py). Normals facing away are
+    handled by each BSDF (one-sided BSDFs return black). A ray whose
+    throughput becomes 0 stops early.
 
     .. code-block:: xml
 
