@@ -32,9 +32,11 @@ def stiff_scene(mi, integrator, *, scale: float = 1.0, shift: float = 0.0, thin:
     """The test scene scaled by ``scale`` about the origin, then moved by ``shift`` along (1, 1, 1).
 
     Floor: a diffuse rectangle 8 x 8 at y = 0; spheres of radius 0.5-0.6 resting on it (Phong,
-    mirror, glass), camera 5.5 away. ``thin`` adds a sphere of radius 4e-3 (1e-3 of the scene's
-    size, 4) resting on the floor; ``grazing`` puts the point light 2 degrees above the floor's
-    plane, far to the side, so shadows are long and the floor is lit at grazing incidence.
+    mirror, glass), camera 5.5 away (field of view 40 degrees). ``thin`` adds a sphere of radius 8e-3 (1e-3 of
+    the scene's size, the floor's 8) resting on the floor 3.4 from the camera, and narrows the
+    camera's view to 1.7 degrees around it (the sphere is 13 pixels wide; its contact with the
+    floor and its shadow in view); ``grazing`` puts the point light 2 degrees above the floor's
+    plane, far to the side, so the shadows are long and the floor is lit at grazing incidence.
     Light intensity scales with ``scale**2`` (unchanged irradiance).
     """
     T = mi.ScalarTransform4f().translate([shift] * 3) @ mi.ScalarTransform4f().scale(scale)
@@ -47,12 +49,14 @@ def stiff_scene(mi, integrator, *, scale: float = 1.0, shift: float = 0.0, thin:
 
     light_pos = (6.0, 0.2, 2.0) if grazing else (2.0, 4.0, 3.0)
     light_pow = 600.0 if grazing else 40.0
+    thin_centre = (0.2, 8e-3, 2.5)
     scene = {
         "type": "scene",
         "integrator": integrator,
-        "sensor": {"type": "perspective", "fov": 40,
+        "sensor": {"type": "perspective", "fov": 1.7 if thin else 40,
                    "near_clip": 1e-2 * scale, "far_clip": 1e3 * scale,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=at(0, 1.6, 5.5), target=at(0, 0.4, 0),
+                   "to_world": mi.ScalarTransform4f().look_at(origin=at(0, 1.6, 5.5),
+                                                              target=at(*(thin_centre if thin else (0, 0.4, 0))),
                                                               up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
                    "sampler": {"type": "independent", "sample_count": spp}},
@@ -68,7 +72,7 @@ def stiff_scene(mi, integrator, *, scale: float = 1.0, shift: float = 0.0, thin:
                   "intensity": {"type": "rgb", "value": light_pow * scale ** 2}},
     }
     if thin:
-        scene["thin"] = sphere((0.3, 4e-3, 1.6), 4e-3, {"type": "diffuse",
+        scene["thin"] = sphere(thin_centre, 8e-3, {"type": "diffuse",
                                                         "reflectance": {"type": "rgb", "value": [0.2, 0.5, 0.8]}})
     return mi.load_dict(scene)
 
