@@ -183,13 +183,14 @@ def offsets_table(mi, n_rays, bar):
                 for k, n in enumerate(OFFSET_NS):
                     bounds.shape_table = mi.Float(np.full(4096, gamma(n) * mag, np.float32))
                     bounds._last_shape = 4095
-                    fail = np.asarray(scene.ray_test(bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f)))) & valid
-                    entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f))
+                    bound = bounds.shape_bound(si)
+                    leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), bound)
+                    fail = np.asarray(scene.ray_test(leaving)) & valid
+                    entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bound)
                     if kind in ("rectangle", "disk"):
                         fail |= np.asarray(scene.ray_test(entering)) & valid
                     elif kind == "cylinder":          # open: a ray may meet the far wall, not its own
-                        fail = valid & (np.asarray(scene.ray_intersect(
-                            bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f))).t) < 0.01 * r)
+                        fail = valid & (np.asarray(scene.ray_intersect(leaving).t) < 0.01 * r)
                     elif kind == "sphere":
                         fail |= valid & ~(np.asarray(scene.ray_intersect(entering).t) > 0.5 * 2 * r * cos)
                     worst[kind][k] = max(worst[kind][k], fail.sum() / max(valid.sum(), 1))
@@ -222,7 +223,8 @@ def report(args, pixels, camera, timing, offsets, seconds):
     out += ["", "![stiff](stiff.png)", "",
             "Camera side: whitted moved away from the origin, against itself at the origin (float32 spacing "
             "of the coordinates there: 6.1e-5 at 1e3, 9.8e-4 at 1e4, 7.8e-3 at 1e5; the thin sphere's "
-            "radius is 8e-3, a pixel of its close-up 4.5e-4):", "", "| scene | moved 1e3 | moved 1e4 | moved 1e5 |", "|---|---|---|---|"]
+            "radius is 8e-3, a pixel of its close-up 4.5e-4):", "",
+            "| scene | moved 1e3 | moved 1e4 | moved 1e5 |", "|---|---|---|---|"]
     for variant, cells in camera:
         out.append(f"| {variant} | " + " | ".join(_pct(c) for c in cells) + " |")
     out += ["", f"Render time, whitted now / before, {args.rounds} interleaved rounds (order alternating), "

@@ -178,9 +178,9 @@ def test_rays_leaving_a_surface_do_not_meet_it_again(mi, kind, r):
         scene, si, valid, out, into, cos = _leaving_rays(mi, kind, r, ratio, 3000, rng)
         assert valid.mean() > 0.4
         bounds = ErrorBounds(scene)
-        leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f))
+        leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), bounds.shape_bound(si))
         assert not np.any(np.asarray(scene.ray_test(leaving)) & valid), (kind, r, ratio)
-        entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f))
+        entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bounds.shape_bound(si))
         if kind in ("rectangle", "disk"):
             assert not np.any(np.asarray(scene.ray_test(entering)) & valid), (kind, r, ratio)
         # the origin moved off the surface by a few float32 roundings of the shape's size, no more
@@ -208,7 +208,8 @@ def test_offsets_scale_exactly_with_the_scene(mi):
         o = _unit(rng, 64) * 3
         d = -o / 3
         si = scene.ray_intersect(mi.Ray3f(_vec(mi, o * s, mi.Point3f), _vec(mi, d, mi.Vector3f)))
-        ours = ErrorBounds(scene).spawn_ray(si, si.n)
+        bounds = ErrorBounds(scene)
+        ours = bounds.spawn_ray(si, si.n, bounds.shape_bound(si))
         theirs = si.spawn_ray(si.n)
         rays[s] = [np.asarray(ours.o), np.asarray(theirs.o) - np.asarray(si.p)]
     small = 2.0 ** -20
@@ -296,3 +297,12 @@ def test_many_emitters_and_area_lights_at_small_scale(mi):
     assert ref.mean() > 0.02
     for s in (1e-5, 1e5):
         assert fraction_off(render(mi, scene(s)), ref) <= GOAL_SCALED, s
+
+
+def test_offsets_docstring_examples_run(mi):
+    import doctest
+
+    from pointillist.plugins.integrators import _offsets
+
+    result = doctest.testmod(_offsets, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 8 and result.failed == 0

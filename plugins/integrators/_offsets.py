@@ -121,8 +121,8 @@ class ErrorBounds:
 
     Build one per render (``ErrorBounds(scene)``: a Python loop over the scene's shapes and
     emitters, before tracing); its methods are traced into the kernel. Replaces
-    ``si.spawn_ray(d)`` by ``bounds.spawn_ray(si, d)`` and ``si.spawn_ray_to(ds.p)`` by
-    ``bounds.spawn_ray_to(si, ds)``.
+    ``si.spawn_ray(d)`` by ``bounds.spawn_ray(si, d, bound)`` and ``si.spawn_ray_to(ds.p)`` by
+    ``bounds.spawn_ray_to(si, bound, ds)``, with ``bound = bounds.shape_bound(si)`` once per hit.
 
     Examples
     --------
@@ -132,11 +132,12 @@ class ErrorBounds:
     ...                       "s": {"type": "sphere", "center": [0, 0, 0], "radius": 1e-6}})
     >>> bounds = ErrorBounds(scene)
     >>> si = scene.ray_intersect(mi.Ray3f([0, 0, 1], [0, 0, -1]))
-    >>> ray = bounds.spawn_ray(si, mi.Vector3f(0, 0, 1))      # leaves the top, upwards
-    >>> off = float(ray.o.z[0]) - 1e-6
-    >>> 0 < off < 1e-11                    # 8 roundings of 1e-6 (Mitsuba 3.9.1: 9e-5)
+    >>> bound = bounds.shape_bound(si)
+    >>> ray = bounds.spawn_ray(si, mi.Vector3f(0, 0, 1), bound)      # leaves the top, upwards
+    >>> off = float(ray.o.z[0]) - float(si.p.z[0])
+    >>> 1e-13 < off < 1e-12                # 8 roundings of 1e-6 (Mitsuba 3.9.1: 9e-5)
     True
-    >>> bool(scene.ray_test(ray)[0]), bool(scene.ray_test(bounds.spawn_ray(si, mi.Vector3f(0, 0, -1)))[0])
+    >>> bool(scene.ray_test(ray)[0]), bool(scene.ray_test(bounds.spawn_ray(si, mi.Vector3f(0, 0, -1), bound))[0])
     (False, True)
     """
 
@@ -159,8 +160,12 @@ class ErrorBounds:
         shape = emitter.get_shape()
         return shape_offset_scale(shape) if shape is not None else 0.0
 
-    def emitter_bound_of(self, emitter) -> mi.Float:
-        """:meth:`emitter_offset_scale` as an opaque value (no kernel recompiled per scene)."""
+    def emitter_bound_of(self, emitter):
+        """:meth:`emitter_offset_scale` as an opaque value (no kernel recompiled per scene), or
+        None for an emitter without a surface (point, spot, directional, environment): its
+        sampled points need no offset."""
+        if emitter.get_shape() is None:
+            return None
         return dr.opaque(mi.Float, self.emitter_offset_scale(emitter))
 
     # ------------------------------------------------------------- traced code
@@ -181,21 +186,26 @@ class ErrorBounds:
         dist = dr.mulsign(bound * (dr.abs(n.x) + dr.abs(n.y) + dr.abs(n.z)), dr.dot(n, d))
         return dr.fma(dist, n, p)
 
-    def spawn_ray(self, si, d, active=True) -> mi.Ray3f:
-        """A ray from hit ``si`` along ``d`` (as ``si.spawn_ray(d)``)."""
-        o = self.offset(si.p, si.n, self.shape_bound(si, active), d)
+    def spawn_ray(self, si, d, bound) -> mi.Ray3f:
+        """A ray from hit ``si`` along ``d`` (as ``si.spawn_ray(d)``); ``bound``: the hit's
+        :meth:`shape_bound` (computed once per hit, shared with the shadow rays)."""
+        o = self.offset(si.p, si.n, bound, d)
         return mi.Ray3f(o, d, dr.largest(mi.Float), si.time, si.wavelengths)
 
-    def spawn_ray_to(self, si, ds, target_bound=None, active=True) -> mi.Ray3f:
-        """A shadow ray from hit ``si`` to the point of direction sample ``ds`` (on an emitter).
+    def spawn_ray_to(self, si, bound, ds, target_bound="gather", active=True) -> mi.Ray3f:
+        """A shadow ray from hit ``si`` (its :meth:`shape_bound` ``bound``) to the point of
+        direction sample ``ds`` on an emitter.
 
-        ``target_bound``: the emitter's error bound (:meth:`emitter_offset_scale`, a Python
-        float when the emitter is known while tracing); by default gathered from ``ds.emitter``.
+        ``target_bound``: that point's error bound: a Float (:meth:`emitter_bound_of`, when the
+        emitter is known while tracing), None (a point without a surface: no offset) or
+        "gather" (from ``ds.emitter``, when the emitter was chosen per lane).
         """
-        if target_bound is None:
+        o = self.offset(si.p, si.n, bound, ds.p - si.p)
+        target = ds.p
+        if isinstance(target_bound, str):
             target_bound = self.emitter_bound(ds, active)
-        o = self.offset(si.p, si.n, self.shape_bound(si, active), ds.p - si.p)
-        target = self.offset(ds.p, ds.n, target_bound, o - ds.p)
+        if target_bound is not None:
+            target = self.offset(ds.p, ds.n, target_bound, o - ds.p)
         d = target - o
         dist = dr.norm(d)
         return mi.Ray3f(o, d / dist, dist * self.shadow, si.time, si.wavelengths)
