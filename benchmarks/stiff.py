@@ -164,7 +164,7 @@ def timing_table(mi, res, spp, rounds, bar):
 
 # ----------------------------------------------------------------- offsets
 KINDS = ("sphere", "rectangle", "disk", "cube", "cylinder")
-OFFSET_NS = (0, 1, 2, 4, 8, 16, 32)
+OFFSET_NS = (0, 1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
 
 
 def offsets_table(mi, n_rays, bar):
@@ -178,6 +178,9 @@ def offsets_table(mi, n_rays, bar):
         for r in (1e-5, 1.0, 1e4):
             for ratio in (0.0, 1.0, 30.0, 1e3, 3e4):
                 scene, si, valid, out, into, cos = _leaving_rays(mi, kind, r, ratio, n_rays, rng)
+                if kind == "cylinder":        # open: only hits on the outside (convex there) count
+                    normal = np.asarray(si.n)
+                    valid = valid & ((out * (normal.T if normal.shape[0] == 3 else normal)).sum(1) > 0)
                 bounds = ErrorBounds(scene)
                 mag = magnitude(scene.shapes()[0].bbox())
                 for k, n in enumerate(OFFSET_NS):
@@ -189,8 +192,6 @@ def offsets_table(mi, n_rays, bar):
                     entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bound)
                     if kind in ("rectangle", "disk"):
                         fail |= np.asarray(scene.ray_test(entering)) & valid
-                    elif kind == "cylinder":          # open: a ray may meet the far wall, not its own
-                        fail = valid & (np.asarray(scene.ray_intersect(leaving).t) < 0.01 * r)
                     elif kind == "sphere":
                         fail |= valid & ~(np.asarray(scene.ray_intersect(entering).t) > 0.5 * 2 * r * cos)
                     worst[kind][k] = max(worst[kind][k], fail.sum() / max(valid.sum(), 1))
