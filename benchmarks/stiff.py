@@ -12,9 +12,9 @@ Measures, in one run:
 2. The camera side: the scene moved 1e3, 1e4, 1e5 from the origin (float32 spacing there:
    6.1e-5, 9.8e-4, 7.8e-3), whitted against itself at the origin.
 3. Render time: whitted now against whitted before, interleaved round by round on
-   scenes/whitted.xml and scenes/cornell_phong.xml, with all cores and with one thread (steadier
-   on a loaded machine): wall time and the kernels' execution time, the median of the per-round
-   ratios and the ratio of the minima; goal: within 2 %.
+   scenes/whitted.xml and scenes/cornell_phong.xml: wall time and CPU time (the steadier on a
+   loaded machine), the median of the per-round ratios and the ratio of the minima; goal:
+   within 2 %.
 4. ``--offsets``: for spheres, rectangles, disks, cubes (triangle meshes) and cylinders of
    radius 1e-5 .. 1e4 centred 0 .. 3e4 radii from the origin, rays leaving hits at grazing to
    normal angles, offset by ``gamma(n) M_S``: the fraction that meet their own surface again,
@@ -133,52 +133,40 @@ def picture(images, path):
 
 # ------------------------------------------------------------------ timing
 def _time_render(mi, scene, spp, seed):
-    """Wall time of one render until its image is evaluated, and its kernels' execution time."""
+    """Wall time and CPU time (this process, all its threads) of one render until its image is
+    evaluated. On a machine loaded by other jobs the CPU time is the steadier of the two."""
     import drjit as dr
 
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()
-    start = time.perf_counter()
+    wall, cpu = time.perf_counter(), time.process_time()
     img = mi.render(scene, spp=spp, seed=seed)
     dr.eval(img)
     dr.sync_thread()
-    wall = time.perf_counter() - start
-    history = dr.kernel_history()
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return wall, sum(k.get("execution_time", 0.0) for k in history) / 1000.0
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def timing_table(mi, res, spp, rounds, threads, bar):
-    """Per scene and thread count: medians of wall and kernel time, median of the per-round
-    ratios and the ratio of the minima (now / before)."""
-    import drjit as dr
-
+def timing_table(mi, res, spp, rounds, bar):
+    """Per scene: medians of wall and CPU time, the median of the per-round ratios and the
+    ratio of the minima (now / before), and the first render's wall time (warm-up)."""
     from pointillist.scene import load_scene
 
-    rows, default_threads = [], dr.thread_count()
-    try:
-        for n_threads in threads:
-            dr.set_thread_count(n_threads or default_threads)
-            for name in ("whitted.xml", "cornell_phong.xml"):
-                scenes = {which: load_scene(ROOT / "scenes" / name, {"res": str(res), "integrator": which})
-                          for which in ("whitted", "whitted_before")}
-                first = {which: _time_render(mi, s, spp, 0)[0] for which, s in scenes.items()}   # warm-up
-                times = {which: [] for which in scenes}
-                for r in range(rounds):
-                    order = list(scenes) if r % 2 == 0 else list(scenes)[::-1]     # alternate who goes first
-                    for which in order:
-                        times[which].append(_time_render(mi, scenes[which], spp, r + 1))
-                    bar.update(1)
-                row = {"scene": name, "threads": n_threads or default_threads,
-                       "first": (first["whitted"], first["whitted_before"])}
-                for k, label in ((0, "wall"), (1, "kernel")):
-                    a = [t[k] for t in times["whitted"]]
-                    b = [t[k] for t in times["whitted_before"]]
-                    row[label] = (statistics.median(a), statistics.median(b),
-                                  statistics.median(x / y for x, y in zip(a, b)), min(a) / min(b))
-                rows.append(row)
-    finally:
-        dr.set_thread_count(default_threads)
+    rows = []
+    for name in ("whitted.xml", "cornell_phong.xml"):
+        scenes = {which: load_scene(ROOT / "scenes" / name, {"res": str(res), "integrator": which})
+                  for which in ("whitted", "whitted_before")}
+        first = {which: _time_render(mi, s, spp, 0)[0] for which, s in scenes.items()}   # warm-up
+        times = {which: [] for which in scenes}
+        for r in range(rounds):
+            order = list(scenes) if r % 2 == 0 else list(scenes)[::-1]     # alternate who goes first
+            for which in order:
+                times[which].append(_time_render(mi, scenes[which], spp, r + 1))
+            bar.update(1)
+        row = {"scene": name, "first": (first["whitted"], first["whitted_before"])}
+        for k, label in ((0, "wall"), (1, "cpu")):
+            a = [t[k] for t in times["whitted"]]
+            b = [t[k] for t in times["whitted_before"]]
+            row[label] = (statistics.median(a), statistics.median(b),
+                          statistics.median(x / y for x, y in zip(a, b)), min(a) / min(b))
+        rows.append(row)
     return rows
 
 
@@ -206,10 +194,10 @@ def offsets_table(mi, n_rays, bar):
                 for k, n in enumerate(OFFSET_NS):
                     bounds.shape_table = mi.Float(np.full(4096, gamma(n) * mag, np.float32))
                     bounds._last_shape = 4095
-                    bound = bounds.shape_bound(si)
-                    leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), bound)
+                    length = bounds.hit_offset(si)
+                    leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), length)
                     fail = np.asarray(scene.ray_test(leaving)) & valid
-                    entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bound)
+                    entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), length)
                     if kind in ("rectangle", "disk"):
                         fail |= np.asarray(scene.ray_test(entering)) & valid
                     elif kind == "sphere":
@@ -249,16 +237,16 @@ def report(args, pixels, camera, timing, offsets, seconds):
     for variant, cells in camera:
         out.append(f"| {variant} | " + " | ".join(_pct(c) for c in cells) + " |")
     out += ["", f"Render time, whitted now / before, {args.rounds} interleaved rounds (order alternating), "
-            f"{args.res}x{args.res}, {args.spp} spp; wall = until the image is evaluated, kernel = the kernels' "
-            "own execution time (Dr.Jit's kernel history); one thread is the steadier under load. Seconds are "
-            "medians; goal: within 2 %:", "",
-            "| scene | threads | now / before wall (s) | median ratio | ratio of minima | now / before kernel (s) "
+            f"{args.res}x{args.res}, {args.spp} spp, image evaluated. Wall time swings with the other jobs on "
+            "the machine; CPU time (this process's threads) is the steadier measure here. Seconds are medians; "
+            "goal: within 2 %:", "",
+            "| scene | wall now / before (s) | median ratio | ratio of minima | CPU now / before (s) "
             "| median ratio | ratio of minima | first render now / before (s) |",
-            "|---|---|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|"]
     for row in timing:
-        w, k = row["wall"], row["kernel"]
-        out.append(f"| scenes/{row['scene']} | {row['threads']} | {w[0]:.3f} / {w[1]:.3f} | {w[2]:.3f} | {w[3]:.3f} "
-                   f"| {k[0]:.3f} / {k[1]:.3f} | {k[2]:.3f} | {k[3]:.3f} | {row['first'][0]:.2f} / "
+        w, c = row["wall"], row["cpu"]
+        out.append(f"| scenes/{row['scene']} | {w[0]:.3f} / {w[1]:.3f} | {w[2]:.3f} | {w[3]:.3f} "
+                   f"| {c[0]:.3f} / {c[1]:.3f} | {c[2]:.3f} | {c[3]:.3f} | {row['first'][0]:.2f} / "
                    f"{row['first'][1]:.2f} |")
     if offsets:
         out += ["", "Rays that meet their own surface again, offset by gamma(n) M_S (worst fraction over radii "
@@ -305,9 +293,8 @@ def main(argv=None) -> int:
     picture(images, ROOT / "benchmarks" / "stiff.png")
     with tqdm(total=len(VARIANTS) * len(SHIFTS), desc="camera side") as bar:
         camera = camera_table(mi, bar)
-    threads = (0, 1)                       # 0: Dr.Jit's default (all cores)
-    with tqdm(total=2 * len(threads) * args.rounds, desc="render time") as bar:
-        timing = timing_table(mi, args.res, args.spp, args.rounds, threads, bar)
+    with tqdm(total=2 * args.rounds, desc="render time") as bar:
+        timing = timing_table(mi, args.res, args.spp, args.rounds, bar)
     offsets = None
     if args.offsets:
         with tqdm(total=len(KINDS) * 15, desc="offsets") as bar:

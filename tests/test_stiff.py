@@ -181,9 +181,9 @@ def test_rays_leaving_a_surface_do_not_meet_it_again(mi, kind, r):
             valid &= (out * (normal.T if normal.shape[0] == 3 else normal)).sum(1) > 0
         assert valid.mean() > 0.25
         bounds = ErrorBounds(scene)
-        leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), bounds.shape_bound(si))
+        leaving = bounds.spawn_ray(si, _vec(mi, out, mi.Vector3f), bounds.hit_offset(si))
         assert not np.any(np.asarray(scene.ray_test(leaving)) & valid), (kind, r, ratio)
-        entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bounds.shape_bound(si))
+        entering = bounds.spawn_ray(si, _vec(mi, into, mi.Vector3f), bounds.hit_offset(si))
         if kind in ("rectangle", "disk"):
             assert not np.any(np.asarray(scene.ray_test(entering)) & valid), (kind, r, ratio)
         # the origin moved off the surface by a few float32 roundings of the shape's size, no more
@@ -212,7 +212,7 @@ def test_offsets_scale_exactly_with_the_scene(mi):
         d = -o / 3
         si = scene.ray_intersect(mi.Ray3f(_vec(mi, o * s, mi.Point3f), _vec(mi, d, mi.Vector3f)))
         bounds = ErrorBounds(scene)
-        ours = bounds.spawn_ray(si, si.n, bounds.shape_bound(si))
+        ours = bounds.spawn_ray(si, si.n, bounds.hit_offset(si))
         theirs = si.spawn_ray(si.n)
         rays[s] = [np.asarray(ours.o), np.asarray(theirs.o) - np.asarray(si.p)]
     small = 2.0 ** -20

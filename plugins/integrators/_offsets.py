@@ -122,8 +122,8 @@ class ErrorBounds:
 
     Build one per render (``ErrorBounds(scene)``: a Python loop over the scene's shapes and
     emitters, before tracing); its methods are traced into the kernel. Replaces
-    ``si.spawn_ray(d)`` by ``bounds.spawn_ray(si, d, bound)`` and ``si.spawn_ray_to(ds.p)`` by
-    ``bounds.spawn_ray_to(si, bound, ds)``, with ``bound = bounds.shape_bound(si)`` once per hit.
+    ``si.spawn_ray(d)`` by ``bounds.spawn_ray(si, d, length)`` and ``si.spawn_ray_to(ds.p)`` by
+    ``bounds.spawn_ray_to(si, length, ds)``, with ``length = bounds.hit_offset(si)`` once per hit.
 
     Examples
     --------
@@ -133,12 +133,12 @@ class ErrorBounds:
     ...                       "s": {"type": "sphere", "center": [0, 0, 0], "radius": 1e-6}})
     >>> bounds = ErrorBounds(scene)
     >>> si = scene.ray_intersect(mi.Ray3f([0, 0, 1], [0, 0, -1]))
-    >>> bound = bounds.shape_bound(si)
-    >>> ray = bounds.spawn_ray(si, mi.Vector3f(0, 0, 1), bound)      # leaves the top, upwards
+    >>> length = bounds.hit_offset(si)
+    >>> ray = bounds.spawn_ray(si, mi.Vector3f(0, 0, 1), length)      # leaves the top, upwards
     >>> off = float(ray.o.z[0]) - float(si.p.z[0])
     >>> 5e-13 < off < 2e-12                # 16 roundings of 1e-6 (Mitsuba 3.9.1: 9e-5)
     True
-    >>> bool(scene.ray_test(ray)[0]), bool(scene.ray_test(bounds.spawn_ray(si, mi.Vector3f(0, 0, -1), bound))[0])
+    >>> bool(scene.ray_test(ray)[0]), bool(scene.ray_test(bounds.spawn_ray(si, mi.Vector3f(0, 0, -1), length))[0])
     (False, True)
     """
 
@@ -181,32 +181,38 @@ class ErrorBounds:
         return dr.gather(mi.Float, self.emitter_table, idx, active)
 
     @staticmethod
-    def offset(p, n, bound, d) -> mi.Point3f:
-        """``p`` moved by ``dot(|n|, p_err)`` (``p_err`` = ``bound`` in each component) along
-        ``n``, to the side of ``d``."""
-        dist = dr.mulsign(bound * (dr.abs(n.x) + dr.abs(n.y) + dr.abs(n.z)), dr.dot(n, d))
-        return dr.fma(dist, n, p)
+    def offset_length(bound, n) -> mi.Float:
+        """``dot(|n|, p_err)`` for ``p_err`` = ``bound`` in each component: how far to move."""
+        return bound * (dr.abs(n.x) + dr.abs(n.y) + dr.abs(n.z))
 
-    def spawn_ray(self, si, d, bound) -> mi.Ray3f:
-        """A ray from hit ``si`` along ``d`` (as ``si.spawn_ray(d)``); ``bound``: the hit's
-        :meth:`shape_bound` (computed once per hit, shared with the shadow rays)."""
-        o = self.offset(si.p, si.n, bound, d)
-        return mi.Ray3f(o, d, dr.largest(mi.Float), si.time, si.wavelengths)
+    def hit_offset(self, si, active=True) -> mi.Float:
+        """How far rays leaving hit ``si`` start off its surface (once per hit, for all its rays)."""
+        return self.offset_length(self.shape_bound(si, active), si.n)
 
-    def spawn_ray_to(self, si, bound, ds, target_bound="gather", active=True) -> mi.Ray3f:
-        """A shadow ray from hit ``si`` (its :meth:`shape_bound` ``bound``) to the point of
+    @staticmethod
+    def offset(p, n, length, d) -> mi.Point3f:
+        """``p`` moved by ``length`` along ``n``, to the side of ``d``."""
+        return dr.fma(dr.mulsign(length, dr.dot(n, d)), n, p)
+
+    def spawn_ray(self, si, d, length) -> mi.Ray3f:
+        """A ray from hit ``si`` along ``d`` (as ``si.spawn_ray(d)``); ``length``: the hit's
+        :meth:`hit_offset`."""
+        return mi.Ray3f(self.offset(si.p, si.n, length, d), d, dr.largest(mi.Float), si.time, si.wavelengths)
+
+    def spawn_ray_to(self, si, length, ds, target_bound="gather", active=True) -> mi.Ray3f:
+        """A shadow ray from hit ``si`` (its :meth:`hit_offset` ``length``) to the point of
         direction sample ``ds`` on an emitter.
 
         ``target_bound``: that point's error bound: a Float (:meth:`emitter_bound_of`, when the
         emitter is known while tracing), None (a point without a surface: no offset) or
         "gather" (from ``ds.emitter``, when the emitter was chosen per lane).
         """
-        o = self.offset(si.p, si.n, bound, ds.p - si.p)
+        o = self.offset(si.p, si.n, length, ds.p - si.p)
         target = ds.p
         if isinstance(target_bound, str):
             target_bound = self.emitter_bound(ds, active)
         if target_bound is not None:
-            target = self.offset(ds.p, ds.n, target_bound, o - ds.p)
+            target = self.offset(ds.p, ds.n, self.offset_length(target_bound, ds.n), o - ds.p)
         d = target - o
         dist = dr.norm(d)
         return mi.Ray3f(o, d / dist, dist * self.shadow, si.time, si.wavelengths)

@@ -226,10 +226,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         if any(self.ambient_value):
             L += beta * self.m_ambient * bsdf.eval_diffuse_reflectance(si, shade)
 
-        bound = self.bounds.shape_bound(si, shade)      # the hit's error bound, for every ray it spawns
+        offset = self.bounds.hit_offset(si, shade)      # from the hit's error bound, for every ray it spawns
         if features.emitters and features.smooth:
             lit = shade & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            L += beta * self._direct(scene, sampler, si, bound, bsdf, lit, features)
+            L += beta * self._direct(scene, sampler, si, offset, bsdf, lit, features)
 
         if not recurse:
             return L, ray, beta, depth, mi.Bool(False), hit
@@ -239,16 +239,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         bs, weight = bsdf.sample(ctx, si, sampler.next_1d(bounce), sampler.next_2d(bounce), bounce)
         beta = beta * weight
         bounce &= dr.any(weight != 0.0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = self.bounds.spawn_ray(si, si.to_world(bs.wo), bound)
+        ray = self.bounds.spawn_ray(si, si.to_world(bs.wo), offset)
         return L, ray, beta, depth, bounce, hit
 
-    def _direct(self, scene, sampler, si, bound, bsdf, active, features):
+    def _direct(self, scene, sampler, si, offset, bsdf, active, features):
         """Light reflected at ``si`` straight from the emitters, with shadow rays."""
         ctx = mi.BSDFContext()
         if features.sample_one_emitter:
             ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), False, active)
             ok = active & (ds.pdf != 0.0)
-            ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, bound, ds, active=ok), ok)
+            ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, offset, ds, active=ok), ok)
             return dr.select(ok, bsdf.eval(ctx, si, si.to_local(ds.d), ok) * weight, 0.0)
         Ld = mi.Spectrum(0.0)
         for emitter in features.emitters:
@@ -258,7 +258,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 sample = sampler.next_2d(active)
             ds, weight = emitter.sample_direction(si, sample, active)
             ok = active & dr.any(weight != 0.0)
-            shadow_ray = self.bounds.spawn_ray_to(si, bound, ds, self.bounds.emitter_bound_of(emitter), ok)
+            shadow_ray = self.bounds.spawn_ray_to(si, offset, ds, self.bounds.emitter_bound_of(emitter), ok)
             visible = ok & ~scene.ray_test(shadow_ray, ok)
             f = bsdf.eval(ctx, si, si.to_local(ds.d), visible)
             Ld += dr.select(visible, f * weight, 0.0)
