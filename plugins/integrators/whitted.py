@@ -119,10 +119,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     At each hit: emitted radiance; the ambient term; direct light from every
     emitter through a shadow ray (``Emitter.sample_direction`` then
-    ``Scene.ray_test``): point, spot and
-    directional lights exactly, area and environment lights by one emitter
-    sample per camera sample (above :data:`MAX_UNROLLED_EMITTERS` emitters one
-    emitter is chosen at random per hit); reflected light is ``bsdf.eval``,
+    ``Scene.ray_test``): point, spot and directional lights exactly, area and
+    environment lights by one emitter sample per camera sample (above
+    :data:`MAX_UNROLLED_EMITTERS` emitters one emitter is chosen at random per
+    hit); reflected light is ``bsdf.eval``,
     which is zero for delta lobes. Then the ray continues along the BSDF's
     delta lobes (mirror reflection, refraction with Snell's law, Fresnel
     weights and total internal reflection, null transmission) drawn with
@@ -151,9 +151,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     light's surface. Scenes scaled by 1e-6 .. 1e6 render the same image, and
     moved 1e3 from the origin change 0.1 - 1.4 % of the pixels (float32
     positions there are 6e-5 apart: tests/test_stiff.py; README "Numerical
-    robustness"). Normals facing away are
-    handled by each BSDF (one-sided BSDFs return black). A ray whose
-    throughput becomes 0 stops early.
+    robustness"). Normals facing away are handled by each BSDF (one-sided
+    BSDFs return black). A ray whose throughput becomes 0 stops early.
 
     .. code-block:: xml
 
