@@ -185,6 +185,20 @@ def _time_render(mi, scene, spp, seed):
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
+def _main_kernel_ops(mi, scene, spp):
+    """Operation count of the largest kernel of one render (Dr.Jit's kernel history)."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    try:
+        dr.eval(mi.render(scene, spp=spp, seed=99))
+        dr.sync_thread()
+        return max(k.get("operation_count", 0) for k in dr.kernel_history())
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
 def timing_table(mi, res, spp, rounds, bar):
     """Per scene: medians of wall and CPU time, the median of the per-round ratios and the
     ratio of the minima (now / before), and the first render's wall time (warm-up)."""
@@ -201,7 +215,8 @@ def timing_table(mi, res, spp, rounds, bar):
             for which in order:
                 times[which].append(_time_render(mi, scenes[which], spp, r + 1))
             bar.update(1)
-        row = {"scene": name, "first": (first["whitted"], first["whitted_before"])}
+        row = {"scene": name, "first": (first["whitted"], first["whitted_before"]),
+               "ops": tuple(_main_kernel_ops(mi, scenes[which], spp) for which in ("whitted", "whitted_before"))}
         for k, label in ((0, "wall"), (1, "cpu")):
             a = [t[k] for t in times["whitted"]]
             b = [t[k] for t in times["whitted_before"]]
@@ -262,7 +277,7 @@ def report(args, pixels, camera, instances, timing, offsets, seconds):
            f"interleaved ratios), {platform.platform()}; Python {platform.python_version()}, "
            f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}. Run time {seconds:.0f} s. Reproduce: "
            f"`flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/stiff.py --res {args.res} "
-           f"--spp {args.spp} --rounds {args.rounds}{' --offsets' if offsets else ''}`.", ""]
+           f"--spp {args.spp} --rounds {args.rounds}{f' --offsets --rays {args.rays}' if offsets else ''}`.", ""]
     out += ["Pixels off by more than 1 % (relative; absolute floor 1e-3 of the image mean) against the same "
             "integrator at scale 1, same seed (tests/test_stiff.py's scene, 80x80, 4 spp). Goals for whitted: "
             "<= 0.5 % at every scale, <= 2 % moved 1e3. \"whitted before\" is whitted.py of commit "
@@ -289,13 +304,15 @@ def report(args, pixels, camera, instances, timing, offsets, seconds):
             "the machine; CPU time (this process's threads) is the steadier measure here. Seconds are medians; "
             "goal: within 2 %:", "",
             "| scene | wall now / before (s) | median ratio | ratio of minima | CPU now / before (s) "
-            "| median ratio | ratio of minima | first render now / before (s) |",
-            "|---|---|---|---|---|---|---|---|"]
+            "| median ratio | ratio of minima | first render now / before (s) | main kernel operations now / before |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for row in timing:
         w, c = row["wall"], row["cpu"]
         out.append(f"| scenes/{row['scene']} | {w[0]:.3f} / {w[1]:.3f} | {w[2]:.3f} | {w[3]:.3f} "
                    f"| {c[0]:.3f} / {c[1]:.3f} | {c[2]:.3f} | {c[3]:.3f} | {row['first'][0]:.2f} / "
-                   f"{row['first'][1]:.2f} |")
+                   f"{row['first'][1]:.2f} | {row['ops'][0]} / {row['ops'][1]} |")
+    out += ["", "On this machine, loaded by other agents' jobs, the timing ratios vary by about 3-5 % from run to "
+            "run; the median per-round CPU ratio is the figure to read."]
     if offsets:
         out += ["", "Rays that meet their own surface again, offset by gamma(n) M_S (worst fraction over radii "
                 "1e-5, 1, 1e4 and centres 0 .. 3e4 radii from the origin; rays leave at cos 1e-4 .. 1 to the "

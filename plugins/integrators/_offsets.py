@@ -38,6 +38,8 @@ stops ``gamma(SHADOW_ULPS)`` of its length short of it.
 
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -79,11 +81,11 @@ def magnitude(bbox) -> float:
     >>> magnitude(mi.ScalarBoundingBox3f([-3, 0, 1], [2, 0.5, 1]))
     3.0
     """
-    lo = np.asarray(bbox.min, np.float64).ravel()[:3]
-    hi = np.asarray(bbox.max, np.float64).ravel()[:3]
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo > hi):
+    lo = [float(bbox.min[i]) for i in range(3)]
+    hi = [float(bbox.max[i]) for i in range(3)]
+    if not all(math.isfinite(v) for v in lo + hi) or any(a > b for a, b in zip(lo, hi)):
         return 0.0
-    return float(max(np.abs(lo).max(), np.abs(hi).max()))
+    return max(abs(v) for v in lo + hi)
 
 
 def _kind_ulps(shape) -> int:
@@ -150,9 +152,10 @@ class ErrorBounds:
         shapes = [s for s in scene.shapes() if s.class_name() not in ("Instance", "ShapeGroup")]
         self.shape_table, self._last_shape = _table(
             [(_registry_id(mi.ShapePtr(s)), shape_offset_scale(s)) for s in shapes], self.fallback)
+        emitters = list(scene.emitters())
+        self._emitter_scales = {id(e): self.emitter_offset_scale(e) for e in emitters}
         self.emitter_table, self._last_emitter = _table(
-            [(_registry_id(mi.EmitterPtr(e)), self.emitter_offset_scale(e)) for e in scene.emitters()],
-            self.fallback)
+            [(_registry_id(mi.EmitterPtr(e)), self._emitter_scales[id(e)]) for e in emitters], self.fallback)
         self.shadow = dr.opaque(mi.Float, 1.0 - gamma(SHADOW_ULPS))
 
     @staticmethod
@@ -167,7 +170,8 @@ class ErrorBounds:
         sampled points need no offset."""
         if emitter.get_shape() is None:
             return None
-        return dr.opaque(mi.Float, self.emitter_offset_scale(emitter))
+        scale = self._emitter_scales.get(id(emitter))
+        return dr.opaque(mi.Float, self.emitter_offset_scale(emitter) if scale is None else scale)
 
     # ------------------------------------------------------------- traced code
     def shape_bound(self, si, active=True) -> mi.Float:
