@@ -384,10 +384,10 @@ def test_enhanced_multiframe_4d_dicom(tmp_path):
         load_volume(tmp_path / "mf", frame=2)
 
 
-def test_4d_nifti_needs_a_frame(tmp_path):
+def test_4d_nifti_needs_a_frame(tmp_path, rng):
     import nibabel
 
-    data = RNG.integers(0, 100, size=(4, 3, 2, 3)).astype(np.int16)
+    data = rng.integers(0, 100, size=(4, 3, 2, 3)).astype(np.int16)
     nibabel.save(nibabel.Nifti1Image(data, np.diag([2.0, 2, 2, 1])), str(tmp_path / "t.nii"))
     with pytest.raises(ValueError, match="4-D with 3 frames; choose one with frame=0..2"):
         load_volume(tmp_path / "t.nii")
