@@ -235,10 +235,6 @@ def _pow2_floor(n: int) -> int:
     return 1 << (int(n).bit_length() - 1)
 
 
-def _pow2_ceil(n: int) -> int:
-    return 1 << (int(n) - 1).bit_length()
-
-
 @dataclass(frozen=True)
 class Budget:
     """When a progressive render stops, and how many spp each pass takes.
@@ -249,8 +245,9 @@ class Budget:
         Stop when the render seconds (:attr:`PassStats.seconds`) reach this; the last passes
         shrink (halving their spp) to end close to it. At least one pass always runs.
     target_error : float, optional
-        Stop when the estimated relMSE is at most this (checked from ``min_passes`` on); pass
-        sizes follow the 1/spp law towards it.
+        Stop when the estimated relMSE is at most this (checked from ``min_passes`` on). Auto
+        passes take 1 spp until the first estimate, then no more than the 1/spp law says is
+        still needed (rounded down to a power of two), so the render stops close to the target.
     spp : int, optional
         Stop at this many samples per pixel (the last pass is cut to land on it exactly).
     pass_spp : int, optional
@@ -261,7 +258,8 @@ class Budget:
         Passes before ``target_error`` is checked (at least :data:`MIN_PASSES`).
 
     The budget is a callable: ``budget(stats)`` is the spp of the next pass (0: stop). Auto
-    and shrunk passes are powers of two, which share one compiled kernel.
+    and shrunk passes are powers of two, which share one compiled kernel (a pass cut to land on
+    ``spp`` exactly may take one more compilation).
 
     Examples
     --------
@@ -313,6 +311,8 @@ class Budget:
         rate = stats.seconds_per_spp()
         if self.pass_spp is not None:
             n = self.pass_spp
+        elif self.target_error is not None and stats.passes < self.min_passes:
+            n = 1  # until the first estimate, as few samples as possible: the target may need only a few
         elif stats.passes == 0 or not math.isfinite(rate):
             n = _pow2_floor(max(FIRST_PASS_SAMPLES // pixels, 1))
         else:
@@ -322,7 +322,7 @@ class Budget:
         if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(
                 stats.estimated_relmse):
             needed = stats.spp * stats.estimated_relmse / self.target_error - stats.spp
-            n = min(n, _pow2_ceil(max(int(math.ceil(needed)), 1)))
+            n = min(n, _pow2_floor(max(int(math.ceil(needed)), 1)))  # approach it from below
         if self.spp is not None and self.spp - stats.spp < n:
             left = self.spp - stats.spp
             n = left if left <= largest else _pow2_floor(left)
@@ -513,24 +513,38 @@ class ProgressiveResult:
     metadata: dict[str, Any] = field(default_factory=dict)
 
 
-class _SigtermAsInterrupt:
-    """While active, SIGTERM raises KeyboardInterrupt (only where nobody handles SIGTERM yet)."""
+class _StopOnSignals:
+    """While active (main thread only), SIGINT and SIGTERM ask the pass loop to stop after the pass
+    in flight; a second one raises KeyboardInterrupt at once (abandoning that pass). The previous
+    handlers (Python's, or the command line's) come back on exit."""
 
     def __enter__(self):
-        self.previous = None
-        if threading.current_thread() is threading.main_thread() and \
-                signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, None):
-            self.previous = signal.signal(signal.SIGTERM, self._raise)
+        self.requested, self.previous = None, {}
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self.previous[signum] = signal.signal(signum, self._handle)
         return self
 
-    @staticmethod
-    def _raise(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
+    def _handle(self, signum, frame):
+        if self.requested is not None:
+            raise KeyboardInterrupt(f"signal {signum} again")
+        self.requested = signum
 
     def __exit__(self, *exc):
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
         return False
+
+
+def _is_interrupt(error: BaseException | None) -> bool:
+    """KeyboardInterrupt, or an error caused by one (Dr.Jit wraps exceptions raised inside a render)."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
 
 
 def _bar(budget: Budget, start: PassStats, progress: bool):
@@ -589,8 +603,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     Returns
     -------
     ProgressiveResult
-        With ``interrupted=True`` after KeyboardInterrupt (or SIGTERM, where no other handler was
-        installed): the passes finished before it. Raises KeyboardInterrupt again when none was.
+        With ``interrupted=True`` after SIGINT (Ctrl-C) or SIGTERM: the pass in flight finishes
+        (a second signal abandons it) and the result holds the passes done; also after a
+        KeyboardInterrupt raised elsewhere. Re-raised when no pass was done.
     """
     seed = _check_seed(seed)
     if not isinstance(budget, Budget):
@@ -610,7 +625,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     last_write = clock()
     bar = _bar(budget, start, progress)
     try:
-        with _SigtermAsInterrupt():
+        with _StopOnSignals() as signals:
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
                                             clock=clock):
                 history.append((new.passes, new.seconds, new.spp, new.estimated_relmse))
@@ -621,12 +636,15 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                                                 if budget.spp is not None else stats.passes))
                 stats = new
                 bar.set_postfix_str(_postfix(budget, stats), refresh=False)
+                if signals.requested is not None:
+                    stop = "interrupted"
+                    break
                 if checkpoint_seconds is not None and clock() - last_write >= checkpoint_seconds:
                     _save_checkpoint(checkpoint_file, acc, stats, history, identity)
                     last_write, checkpoints = clock(), checkpoints + 1
-        stop = budget.stop_reason(stats) or "spp"
-    except KeyboardInterrupt:
-        if acc.passes == 0:
+        stop = stop or budget.stop_reason(stats) or "spp"
+    except BaseException as error:  # noqa: BLE001 - only interruptions are handled here
+        if not _is_interrupt(error) or acc.passes == 0:
             raise
         stop = "interrupted"
     finally:
