@@ -67,9 +67,10 @@ __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOIN
 #: passes the estimate was off by up to 2x on small path-traced images, at 8 within 1.8x).
 MIN_PASSES = 8
 
-#: Auto pass size: aim at passes of about this many seconds (per-pass overhead ~10-20 ms, i.e.
-#: a few per cent), at most an eighth of a time budget.
-TARGET_PASS_SECONDS = 0.5
+#: Auto pass size: aim at passes of about this many seconds (at most an eighth of a time budget).
+#: A pass costs ~20-60 ms besides its samples (tracing the integrator again, film set-up; measured
+#: at 256x256-512x512 here), so a second keeps the overhead of passes near 3-5 %.
+TARGET_PASS_SECONDS = 1.0
 
 #: Auto pass size: samples (pixels x spp) of the first pass, which also compiles the kernels.
 FIRST_PASS_SAMPLES = 2**18
@@ -253,7 +254,7 @@ class Budget:
     pass_spp : int, optional
         Samples per pass; default (None): the first pass takes about
         :data:`FIRST_PASS_SAMPLES` samples (it compiles the kernels), the others the power of
-        two that takes about :data:`TARGET_PASS_SECONDS` (at most an eighth of ``seconds``).
+        two nearest to :data:`TARGET_PASS_SECONDS` (at most an eighth of ``seconds``).
     min_passes : int
         Passes before ``target_error`` is checked (at least :data:`MIN_PASSES`).
 
@@ -317,7 +318,7 @@ class Budget:
             n = _pow2_floor(max(FIRST_PASS_SAMPLES // pixels, 1))
         else:
             target = TARGET_PASS_SECONDS if self.seconds is None else min(TARGET_PASS_SECONDS, self.seconds / 8)
-            n = _pow2_floor(max(int(target / rate), 1))
+            n = 1 << max(round(math.log2(max(target / rate, 1.0))), 0)  # nearest power of two
         n = min(n, largest)
         if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(
                 stats.estimated_relmse):
@@ -550,16 +551,21 @@ def _is_interrupt(error: BaseException | None) -> bool:
 def _bar(budget: Budget, start: PassStats, progress: bool):
     from tqdm import tqdm
 
-    if budget.seconds is not None:
-        total, unit, initial = budget.seconds, "s", min(start.seconds, budget.seconds)
-    elif budget.spp is not None:
-        total, unit, initial = budget.spp, "spp", start.spp
-    else:
-        total, unit, initial = None, "pass", start.passes
-    return tqdm(total=total, initial=initial, unit=unit, desc="render", leave=False,
+    total, unit = ((budget.seconds, "s") if budget.seconds is not None else (budget.spp, "spp")
+                   if budget.spp is not None else (None, "pass"))
+    return tqdm(total=total, initial=_bar_position(budget, start), unit=unit, desc="render", leave=False,
                 disable=None if progress else True,
                 bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} {unit} [{elapsed}<{remaining}{postfix}]"
                 if total is not None else None)
+
+
+def _bar_position(budget: Budget, stats: PassStats) -> float:
+    """Where the bar stands: seconds (time budget), spp (spp budget) or passes, never past the total."""
+    if budget.seconds is not None:
+        return min(stats.seconds, budget.seconds)
+    if budget.spp is not None:
+        return min(stats.spp, budget.spp)
+    return stats.passes
 
 
 def _postfix(budget: Budget, stats: PassStats) -> str:
@@ -631,9 +637,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                 history.append((new.passes, new.seconds, new.spp, new.estimated_relmse))
                 sums = [sums[0] + timing.trace, sums[1] + timing.compile, sums[2] + timing.execute,
                         sums[3] + timing.kernels, sums[4] + timing.cache_hits]
-                bar.update((new.seconds if budget.seconds is not None else new.spp if budget.spp is not None
-                            else new.passes) - (stats.seconds if budget.seconds is not None else stats.spp
-                                                if budget.spp is not None else stats.passes))
+                bar.update(_bar_position(budget, new) - _bar_position(budget, stats))
                 stats = new
                 bar.set_postfix_str(_postfix(budget, stats), refresh=False)
                 if signals.requested is not None:
