@@ -112,7 +112,6 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
                          tiles=tiles, where=where, cached=result.cached)
 
 
-
 def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,
                         png: bool, load_s: float, time_budget, target_error, spp, pass_spp, variance_layer: bool,
                         checkpoint, resume: bool) -> RenderSummary:
