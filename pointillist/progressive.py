@@ -258,6 +258,7 @@ class Budget:
     min_passes : int
         Passes before ``target_error`` is checked (at least :data:`MIN_PASSES`).
 
+    Without ``seconds``, ``target_error`` or ``spp`` the passes go on until interrupted (Ctrl-C).
     The budget is a callable: ``budget(stats)`` is the spp of the next pass (0: stop). Auto
     and shrunk passes are powers of two, which share one compiled kernel (a pass cut to land on
     ``spp`` exactly may take one more compilation).
