@@ -37,10 +37,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 SCENES = ROOT / "scenes"
 
-OVERHEAD_CASES = [  # (label, scene, -D params, total spp)
-    ("Cornell box, whitted, 256x256", "cornell_phong.xml", {"res": "256"}, 256),
-    ("edges, direct, 512x512", "edges.xml", {"res": "512"}, 128),
-    ("Cornell box, path, 256x256", "cornell_phong.xml", {"res": "256", "integrator": "path"}, 64),
+OVERHEAD_CASES = [  # (label, scene, -D params, total spp): several seconds, so about 5-10 passes of ~1 s
+    ("Cornell box, whitted, 256x256", "cornell_phong.xml", {"res": "256"}, 1024),
+    ("edges, direct, 512x512", "edges.xml", {"res": "512"}, 512),
+    ("Cornell box, path, 256x256", "cornell_phong.xml", {"res": "256", "integrator": "path"}, 192),
 ]
 TIME_CASES = [("edges.xml", {"res": "64"}, 4.0), ("cornell_phong.xml", {"res": "128"}, 4.0),
               ("edges.xml", {"res": "64"}, 1.5)]
@@ -224,6 +224,11 @@ def main(argv=None) -> int:
             lines.append(f"| {r['label']} | {r['spp']} ({r['passes']}, {r['seconds']:.1f}) | {r['est']:.5f} | "
                          f"{r['true']:.5f} | {r['true'] / r['est']:.2f} | {track} |")
         lines.append("")
+        lines += ["Reading it: the reference has its own noise, so against a 1024-spp reference the ratio drifts up "
+                  "by about spp/1024 (+25 % at 256 spp) even for a perfect estimate. The error budget starts with "
+                  "1-spp passes and stops at the first estimate below the target; on the Cornell box that is at "
+                  "~12 spp, where most pixels at the edge of the ceiling light have not yet seen it (no spread, "
+                  "the estimate's known blind spot for rare paths), hence its higher ratio.", ""]
     text = "\n".join(lines)
     print(text)
     if args.write:
