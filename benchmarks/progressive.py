@@ -238,6 +238,11 @@ def main(argv=None) -> int:
         if begin not in content:
             content = content.rstrip("\n") + f"\n\n{begin}\n{end}\n"
         i, j = content.index(begin) + len(begin), content.index(end)
+        if skip:  # keep the sections of the parts not run this time from the block already there
+            old = {part.split("\n", 1)[0].split(" ")[0]: "### " + part for part in content[i:j].split("\n### ")[1:]}
+            keep = [old[key].rstrip("\n") + "\n" for part, key in (("overhead", "Overhead"), ("time", "Time"),
+                                                                   ("error", "Error")) if part in skip and key in old]
+            text = text.rstrip("\n") + "\n\n" + "\n".join(keep)
         path.write_text(content[:i] + "\n" + text + "\n" + content[j:])
     return 0
 
