@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 SCENES = ROOT / "scenes"
 
-OVERHEAD_CASES = [  # (label, scene, -D params, total spp): several seconds, so about 5-10 passes of ~1 s
+OVERHEAD_CASES = [  # (label, scene, -D params, total spp): long enough for several passes of ~2 s
     ("Cornell box, whitted, 256x256", "cornell_phong.xml", {"res": "256"}, 1024),
     ("edges, direct, 512x512", "edges.xml", {"res": "512"}, 512),
     ("Cornell box, path, 256x256", "cornell_phong.xml", {"res": "256", "integrator": "path"}, 192),
@@ -189,7 +189,7 @@ def main(argv=None) -> int:
     if over:
         lines += ["### Overhead of passes (goal: at most 5 %)", "",
                   f"One `mi.render` of N spp vs the same N spp in automatic passes (`Budget(spp=N)`: a first pass of "
-                  f"~2^18 samples, then powers of two of ~1 s), {args.rounds} interleaved rounds after one warm-up "
+                  f"~2^18 samples, then powers of two of ~2 s), {args.rounds} interleaved rounds after one warm-up "
                   "each (JIT compilation apart: the warm-up columns). Wall-clock ratios swing with the other "
                   "agents' load; the process CPU time (all threads of this process) is steadier: it counts the "
                   "work the passes add, not the waiting.", "",

@@ -68,9 +68,10 @@ __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOIN
 MIN_PASSES = 8
 
 #: Auto pass size: aim at passes of about this many seconds (at most an eighth of a time budget).
-#: A pass costs ~20-60 ms besides its samples (tracing the integrator again, film set-up; measured
-#: at 256x256-512x512 here), so a second keeps the overhead of passes near 3-5 %.
-TARGET_PASS_SECONDS = 1.0
+#: A pass costs tens of ms besides its samples (tracing the integrator again, film set-up, the
+#: tail of each kernel): passes of ~1 s measured 6-9 % of overhead at 256x256-512x512 here
+#: (benchmarks/RESULTS.md), so passes are twice that.
+TARGET_PASS_SECONDS = 2.0
 
 #: Auto pass size: samples (pixels x spp) of the first pass, which also compiles the kernels.
 FIRST_PASS_SAMPLES = 2**18

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     prog.add_argument("--target-error", type=positive_float, metavar="E",
                       help="render passes until the estimated relMSE (epsilon 0.01, as in compare) is at most E")
     prog.add_argument("--pass-spp", type=positive_int, metavar="N",
-                      help="samples per pixel of each pass (default: powers of two, passes of about a second)")
+                      help="samples per pixel of each pass (default: powers of two, passes of about 2 s)")
     prog.add_argument("--variance-layer", action="store_true",
                       help="add an EXR layer 'variance': per-pixel variance of the mean (colour channels averaged)")
     prog.add_argument("--checkpoint", type=positive_float, metavar="SECONDS",
