@@ -25,7 +25,8 @@ class RenderSummary:
 
     ``timing`` is a :class:`pointillist.scene.RenderTiming` (for tiles: sums over the
     tiles, ``total`` the wall time); ``where`` says where tiles ran (``None``
-    untiled); ``cached`` how many tiles came from the cache.
+    untiled); ``cached`` how many tiles came from the cache; ``progressive`` the
+    :class:`pointillist.progressive.ProgressiveResult` of a render in passes (else ``None``).
     """
 
     exr: Path
@@ -37,17 +38,28 @@ class RenderSummary:
     tiles: tuple[int, int] | None = None
     where: str | None = None
     cached: int = 0
+    progressive: Any = None
 
 
 def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = None, *, spp: int | None = None,
                 seed: int = 0, png: bool = False, params: dict[str, str] | None = None,
                 tiles: tuple[int, int] | None = None, workers: int | None = None, scheduler: str | None = None,
-                cache: str | os.PathLike | None = None) -> RenderSummary:
+                cache: str | os.PathLike | None = None, time_budget: float | None = None,
+                target_error: float | None = None, pass_spp: int | None = None, variance_layer: bool = False,
+                checkpoint: float | None = None, resume: bool = False) -> RenderSummary:
     """Render ``scene`` to ``output`` (default ``out/<scene name>.exr``) and a PNG preview with ``png``.
 
     ``spp`` defaults to the scene's. ``tiles`` ``(rows, cols)``, ``workers``,
     ``scheduler`` or ``cache`` render the film as crop-window tiles
     (:func:`pointillist.tiles.render_tiled`), on a Dask cluster with the latter two.
+
+    Progressive rendering (:mod:`pointillist.progressive`): with ``time_budget`` (seconds),
+    ``target_error`` (estimated relMSE), ``pass_spp``, ``checkpoint`` (seconds between writes of
+    ``OUT.checkpoint.npz``) or ``resume``, the render runs in passes until the budget is spent
+    (``spp`` caps it; with neither time nor error budget, ``spp`` or the scene's is the total),
+    writes ``OUT.progress.csv`` (and ``OUT.progress.png`` with ``png``) and, with
+    ``variance_layer``, an EXR layer ``variance``. Ctrl-C / SIGTERM end it early, keeping the
+    passes done (``interrupted`` in the header).
 
     Raises
     ------
@@ -67,8 +79,17 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     loaded = load_scene(scene, params)
     load_s = time.perf_counter() - start
     info = scene_info(loaded)
-    spp = spp or info["spp"]
     png_path = out.with_suffix(".png") if png else None
+    progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
+                   or checkpoint is not None or resume)
+    if progressive:
+        if tiles or workers or scheduler or cache:
+            raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
+                             "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
+        return _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png, load_s=load_s,
+                                   time_budget=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp,
+                                   variance_layer=variance_layer, checkpoint=checkpoint, resume=resume)
+    spp = spp or info["spp"]
     if not (tiles or workers or scheduler or cache):
         image, timing = timed_render(loaded, spp=spp, seed=seed)
         write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png)
@@ -89,3 +110,23 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     write_render(out, result.image, loaded, str(scene), meta, timing, png=png)
     return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
                          tiles=tiles, where=where, cached=result.cached)
+
+
+def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,
+                        png: bool, load_s: float, time_budget, target_error, spp, pass_spp, variance_layer: bool,
+                        checkpoint, resume: bool) -> RenderSummary:
+    """The progressive branch of :func:`render_file`: passes, EXR with their metadata, progress log."""
+    from pointillist.progressive import Budget, checkpoint_path, render_progressive, write_progress
+
+    if time_budget is None and target_error is None:
+        spp = spp or info["spp"]
+    budget = Budget(seconds=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp)
+    result = render_progressive(loaded, scene, budget, params=params, seed=seed, checkpoint_seconds=checkpoint,
+                                checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,
+                                resume=resume, progress=True)
+    layers = {"variance": result.variance} if variance_layer else None
+    write_render(out, result.image, loaded, str(scene), dict(info, **result.metadata), result.timing, png=png,
+                 extra_layers=layers)
+    write_progress(out, result.history, png=png, inputs=[scene])
+    return RenderSummary(exr=out, png=png_path, info=info, spp=result.stats.spp, timing=result.timing,
+                         load_seconds=load_s, progressive=result)

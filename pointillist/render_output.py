@@ -31,8 +31,12 @@ def output_path(scene: str, output: str | None) -> Path:
 
 
 
-def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *, png: bool) -> None:
-    """Write a render's EXR (extra channels as layers, metadata in the header) and PNG preview."""
+def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *, png: bool,
+                 extra_layers: dict | None = None) -> None:
+    """Write a render's EXR (extra channels as layers, metadata in the header) and PNG preview.
+
+    ``extra_layers`` adds (H, W) EXR layers by name (e.g. a progressive render's ``variance``).
+    """
     import numpy as np
 
     from pointillist.imaging.io import write_exr, write_png
@@ -41,6 +45,7 @@ def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *
     names = list(scene.integrator().aov_names())
     base = pixels.shape[2] - len(names)
     layers = {name: pixels[..., base + i] for i, name in enumerate(names)}
+    layers.update(extra_layers or {})
     metadata = dict(info, scene=str(scene_path), render_seconds=timing.total,
                     compile_seconds=timing.compile, execute_seconds=timing.execute,
                     trace_seconds=timing.trace)

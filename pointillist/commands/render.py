@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from pointillist.commands._types import non_negative_int, positive_int
+from pointillist.commands._types import non_negative_int, positive_float, positive_int
 
 NAME = "render"
 HELP = "render a scene XML to EXR (+ PNG preview)"
@@ -23,6 +23,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside the EXR")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML); repeatable")
+    prog = parser.add_argument_group(
+        "progressive rendering (pointillist.progressive): passes with their own seeds, a running relMSE estimate "
+        "from the spread between passes; --spp caps the total; writes OUT.progress.csv (+ .png with --png)")
+    prog.add_argument("--time", type=positive_float, metavar="SECONDS", dest="time_budget",
+                      help="render passes until SECONDS of rendering are spent")
+    prog.add_argument("--target-error", type=positive_float, metavar="E",
+                      help="render passes until the estimated relMSE (epsilon 0.01, as in compare) is at most E")
+    prog.add_argument("--pass-spp", type=positive_int, metavar="N",
+                      help="samples per pixel of each pass (default: powers of two, passes of about 2 s)")
+    prog.add_argument("--variance-layer", action="store_true",
+                      help="add an EXR layer 'variance': per-pixel variance of the mean (colour channels averaged)")
+    prog.add_argument("--checkpoint", type=positive_float, metavar="SECONDS",
+                      help="write the running state to OUT.checkpoint.npz every SECONDS (atomically)")
+    prog.add_argument("--resume", action="store_true",
+                      help="continue from OUT.checkpoint.npz (same scene file, -D values, seed; budgets count "
+                           "the resumed passes)")
     dist = parser.add_argument_group("tiles and Dask distributed (pointillist.tiles)")
     dist.add_argument("--tiles", type=tiles_arg, metavar="RxC",
                       help="split the film into R x C crop-window tiles, one task each, tile i seeded "
@@ -53,9 +69,18 @@ def run(args: argparse.Namespace) -> int:
 
     done = render_file(args.scene, args.output, spp=args.spp, seed=args.seed, png=args.png,
                        params=parse_defines(args.defines), tiles=args.tiles, workers=args.workers,
-                       scheduler=args.scheduler, cache=args.cache)
+                       scheduler=args.scheduler, cache=args.cache, time_budget=args.time_budget,
+                       target_error=args.target_error, pass_spp=args.pass_spp, variance_layer=args.variance_layer,
+                       checkpoint=args.checkpoint, resume=args.resume)
     info, timing = done.info, done.timing
     print(f"wrote {done.exr}" + (f" and {done.png}" if done.png else ""))
+    if done.progressive is not None:
+        result, stats = done.progressive, done.progressive.stats
+        print(f"{info['width']}x{info['height']}, integrator {info['integrator']}, sampler {info['sampler']}: "
+              f"{stats.spp} spp in {stats.passes} passes, {stats.seconds:.2f} s (JIT compile "
+              f"{stats.compile_seconds:.2f} s), estimated relMSE {stats.estimated_relmse:.4g}, stopped by "
+              f"{result.stop}" + (f" (resumed from {result.resumed_from} passes)" if result.resumed_from else ""))
+        return 130 if result.interrupted else 0  # interrupted: the passes done are written, but it is not done
     if done.tiles is None:
         print(f"{info['width']}x{info['height']} at {done.spp} spp, integrator {info['integrator']}, "
               f"sampler {info['sampler']}")
