@@ -63,7 +63,8 @@ def main(argv=None) -> int:
     import drjit as dr
     from tqdm import tqdm
 
-    from pointillist.compare import REFERENCE_SAMPLER, REFERENCE_SEED, image_errors
+    from pointillist.compare import REFERENCE_SAMPLER, REFERENCE_SEED
+    from pointillist.imaging.metrics import image_errors
     from pointillist.compare_methods import METHODS, load_configured_scene
     from pointillist.scene import load_scene, timed_render
 

@@ -135,7 +135,7 @@ def time_budgets(repeats):
 def error_budgets(target):
     import numpy as np
 
-    from pointillist.compare import image_errors
+    from pointillist.imaging.metrics import image_errors
     from pointillist.progressive import Budget, render_passes, render_progressive
     from pointillist.scene import load_scene, timed_render
 

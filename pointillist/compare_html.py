@@ -4,7 +4,7 @@
 with the results table (:func:`pointillist.compare_report.results_table`), the page's
 script (``pointillist/report/report.js``, inlined) and the data as JSON: every sweep
 point's numbers and, for the lowest seed of each point, its render as HDR data
-(float16 RGB, base64), its per-pixel relMSE and HDR-FLIP maps (:func:`pointillist.compare.error_maps`,
+(float16 RGB, base64), its per-pixel relMSE and HDR-FLIP maps (:func:`pointillist.imaging.metrics.error_maps`,
 float16) and an adaptive method's ``sample_count`` layer; the reference likewise. The
 page applies exposure and the sRGB transfer function itself, draws the maps through
 colour tables computed here (viridis for relMSE on a log scale, magma for FLIP as in
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.compare import error_maps
+from pointillist.imaging.metrics import error_maps
 from pointillist.compare_methods import setting_label, sweep_parameter
 from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, slopes, summarise
 from pointillist.render_output import SAMPLE_COUNT_LAYER

@@ -15,8 +15,8 @@ sampler). If a sample has variance ``sigma^2``, a pass of ``n`` spp has ``sigma^
 
     var_of_mean = M2 / ((K - 1) * W)          (unbiased; needs K >= 2)
 
-**Estimated relMSE** (the relMSE of :func:`pointillist.compare.image_errors`, epsilon
-:data:`pointillist.compare.RELMSE_EPSILON`, without the reference ``r``): the expected squared
+**Estimated relMSE** (the relMSE of :func:`pointillist.imaging.metrics.image_errors`, epsilon
+:data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the expected squared
 error of a pixel is ``var_of_mean``; its reference is unknown, and the running mean is a noisy
 stand-in whose square is biased high, ``E[mean^2] = r^2 + var``, which makes the plain
 ``var / (mean^2 + eps)`` under-estimate noisy images (by up to 2-3x at a few passes of a path
@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.compare import RELMSE_EPSILON
+from pointillist.imaging.metrics import RELMSE_EPSILON
 from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 

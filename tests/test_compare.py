@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pointillist.compare import RenderRecord, Task, image_errors
+from pointillist.compare import RenderRecord, Task
+from pointillist.imaging.metrics import image_errors
 from pointillist.compare_methods import METHODS, Method, configure_scene, resolve_methods, setting_label
 from pointillist.compare_report import equal_error_ranking, equal_time_ranking, fit_slope
 from pointillist.errors import UsageError
@@ -145,7 +146,7 @@ def test_flip_of_a_black_or_constant_reference_does_not_end_the_process():
     # regression shows as a failed assertion rather than a vanished pytest.
     code = (
         "import numpy as np\n"
-        "from pointillist.compare import image_errors\n"
+        "from pointillist.imaging.metrics import image_errors\n"
         "for ref in (np.zeros((4, 4, 3)), np.full((4, 4, 3), 1e-7), np.full((4, 4, 3), 0.5)):\n"
         "    print(image_errors(ref + 0.05, ref)['flip'], image_errors(np.full((4, 4, 3), np.nan), ref)['flip'])\n"
     )
@@ -349,9 +350,9 @@ def test_cli_compare_checks_sample_counts_before_rendering(cli, tmp_path):
 def test_docstring_examples_run():
     import doctest
 
-    import pointillist.compare as compare
     import pointillist.compare_report as compare_report
+    import pointillist.imaging.metrics as metrics
 
-    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE) for module in (compare, compare_report)]
+    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE) for module in (compare_report, metrics)]
     assert all(r.attempted >= 2 for r in results) and sum(r.attempted for r in results) >= 6
     assert all(r.failed == 0 for r in results)

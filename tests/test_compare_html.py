@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pointillist.compare import RenderRecord, error_maps, image_errors
+from pointillist.compare import RenderRecord
+from pointillist.imaging.metrics import error_maps, image_errors
 from pointillist.compare_html import colormap_table, encode_half, subsample_stride, write_html_report
 from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, summarise, write_report
 

@@ -36,7 +36,7 @@ def _render(scene, spp, seed):
 
 
 def _relmse(image, reference):
-    from pointillist.compare import image_errors
+    from pointillist.imaging.metrics import image_errors
 
     return image_errors(np.asarray(image), np.asarray(reference), flip=False)["relmse"]
 

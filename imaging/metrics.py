@@ -1,0 +1,142 @@
+"""Errors of an image against a reference: RMSE, relative MSE and HDR-FLIP, with their per-pixel maps.
+
+The measures ``pointillist compare`` reports (and ``pointillist render``'s progressive
+estimate imitates without a reference):
+
+- ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
+- ``relmse = mean((x - r)^2 / (r^2 + epsilon))``, epsilon = :data:`RELMSE_EPSILON`;
+- ``flip``: the mean of HDR-FLIP (Andersson et al. 2021, flip-evaluator), linear sRGB input.
+
+Notes
+-----
+==============  ===============================  ===================================
+argument        domain                           what happens
+==============  ===============================  ===================================
+``image``       (H, W) or (H, W, C), any float   NaN/inf make RMSE/relMSE non-finite
+``reference``   same shape, any float            a black or constant reference gets
+                                                 FLIP's single exposure (no abort)
+==============  ===============================  ===================================
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["RELMSE_EPSILON", "image_errors", "error_maps"]
+
+#: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
+RELMSE_EPSILON = 0.01
+
+
+# ----------------------------------------------------------------------------- errors
+# ----------------------------------------------------------------------------- errors
+def _rgb(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image, dtype=np.float64)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    return image[..., :3]
+
+
+def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
+                 maps: dict[str, np.ndarray] | None = None) -> dict[str, float]:
+    """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
+
+    - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
+    - ``relmse = mean((x - r)^2 / (r^2 + 0.01))`` (:data:`RELMSE_EPSILON`);
+    - ``flip``: mean HDR-FLIP (flip-evaluator, linear sRGB input, default viewing
+      conditions), NaN values and negatives set to 0 first.
+
+    Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
+    reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
+    receives the per-pixel maps whose means these are (:func:`error_maps`), at no
+    extra cost.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = np.full((4, 4, 3), 0.5, np.float32)
+    >>> e = image_errors(ref + 0.1, ref, flip=False)
+    >>> round(e["rmse"], 6), round(e["relmse"], 6)
+    (0.1, 0.038462)
+    """
+    x, r = _pair(image, reference)
+    diff2 = (x - r) ** 2
+    relative = diff2 / (r * r + RELMSE_EPSILON)
+    result = {"rmse": float(np.sqrt(diff2.mean())), "relmse": float(relative.mean()), "flip": math.nan}
+    if maps is not None:
+        maps["relmse"] = relative.mean(axis=2).astype(np.float32)
+    if flip:
+        flip_map, result["flip"] = _flip(x, r)
+        if maps is not None:
+            maps["flip"] = flip_map
+    return result
+
+
+def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, np.ndarray]:
+    """Per-pixel errors of ``image`` against ``reference``: (H, W) float32 maps.
+
+    - ``relmse``: ``mean over RGB of (x - r)^2 / (r^2 + 0.01)``; its mean over the
+      pixels is :func:`image_errors`' ``relmse``;
+    - ``flip`` (with ``flip``): the HDR-FLIP error map in [0, 1] (flip-evaluator, the
+      input cleaned as in :func:`image_errors`); its mean is the ``flip`` there.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = np.zeros((1, 2, 3), np.float32)
+    >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"].tolist()
+    [[1.0, 3.0]]
+    """
+    maps: dict[str, np.ndarray] = {}
+    image_errors(image, reference, flip=flip, maps=maps)
+    return maps
+
+
+def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x, r = _rgb(image), _rgb(reference)
+    if x.shape != r.shape:
+        raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
+    return x, r
+
+
+def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """HDR-FLIP of ``x`` against ``r``: the (H, W) map and its mean."""
+    import flip_evaluator
+
+    def clean(a):
+        return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
+
+    reference = clean(r)
+    error_map, mean, _ = flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,
+                                                 **_flip_exposures(reference))
+    return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
+
+
+def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
+    """HDR-FLIP's own exposure range, except where flip-evaluator would exit the process.
+
+    flip-evaluator takes start = log2(x_max / Y_max) and stop = log2(x_max / Y_median) from the
+    reference's luminance and calls ``exit`` ("Start exposure must be smaller than stop exposure!")
+    when rounding puts start above stop (a constant reference of 1e-7) or the reference is black.
+    In those cases (median luminance = maximum) both are passed explicitly as the one exposure
+    log2(x_max / Y_max) (0 for a black reference), which is what flip-evaluator uses when they tie.
+    """
+    luminance = reference @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    y_max, y_median = float(luminance.max()), float(np.median(luminance))
+    if y_median < y_max * (1 - 1e-5):
+        return {}
+    exposure = math.log2(_FLIP_ACES_X_MAX / y_max) if y_max > 0 else 0.0
+    return {"parameters": {"startExposure": exposure, "stopExposure": exposure}}
+
+
+def _aces_x_max(t: float = 0.85) -> float:
+    """HDR-FLIP's x_max: where the ACES fit (with FLIP's 0.6 pre-exposure) reaches t (Andersson et al. 2021)."""
+    k0, k1, k2, k3, k4, k5 = 0.36 * 2.51, 0.6 * 0.03, 0.0, 0.36 * 2.43, 0.6 * 0.59, 0.14
+    c0, c1 = (k1 - k4 * t) / (k0 - k3 * t), (k2 - k5 * t) / (k0 - k3 * t)
+    return -0.5 * c0 + math.sqrt(0.25 * c0 * c0 - c1)
+
+
+_FLIP_ACES_X_MAX = _aces_x_max()
