@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -30,7 +31,8 @@ from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "run_sweep",
+    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "flip_undefined",
+    "FLIP_MIN_LUMINANCE", "run_sweep",
     "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
     "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
 ]
@@ -234,13 +236,52 @@ def _rgb(image: np.ndarray) -> np.ndarray:
         image = np.repeat(image[..., None], 3, axis=2)
     return image[..., :3]
 
+#: HDR-FLIP's exposure range runs from log2(x / max Y) to log2(x / max(median Y, FLT_EPSILON)) (Y the
+#: reference's luminance, Rec. 709 weights); flip-evaluator aborts the process when the start exceeds the
+#: stop, i.e. when max Y < FLT_EPSILON (measured: an all-black, all-NaN or 1e-30 reference).
+#: :func:`image_errors` calls it only when max Y reaches twice that.
+FLIP_MIN_LUMINANCE = 2.0 * float(np.finfo(np.float32).eps)
+
+
+def _flip_clean(a: np.ndarray) -> np.ndarray:
+    """FLIP's input: NaN and negatives set to 0, +inf and values above 1e4 to 1e4, float32."""
+    return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
+
+
+def flip_undefined(reference: np.ndarray) -> str | None:
+    """Why HDR-FLIP cannot be computed against ``reference`` (``None`` when it can).
+
+    flip-evaluator aborts the interpreter (it cannot raise) when the reference's largest
+    luminance, after :func:`image_errors`' cleaning, is below FLT_EPSILON: all black,
+    all NaN, all negative or tiny values. See :data:`FLIP_MIN_LUMINANCE`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> flip_undefined(np.zeros((2, 2, 3)))
+    'the reference has no positive finite value (largest luminance 0)'
+    >>> flip_undefined(np.full((2, 2, 3), 0.5)) is None
+    True
+    """
+    r = _flip_clean(_rgb(reference)).astype(np.float64)
+    luminance = r[..., 0] * 0.2126 + r[..., 1] * 0.7152 + r[..., 2] * 0.0722
+    largest = float(luminance.max()) if luminance.size else 0.0
+    if largest >= FLIP_MIN_LUMINANCE:
+        return None
+    if largest == 0.0:
+        return "the reference has no positive finite value (largest luminance 0)"
+    return f"the reference's largest luminance {largest:.3g} is below {FLIP_MIN_LUMINANCE:.3g}"
+
+
 def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
 
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
     - ``relmse = mean((x - r)^2 / (r^2 + 0.01))`` (:data:`RELMSE_EPSILON`);
     - ``flip``: mean HDR-FLIP (flip-evaluator, linear sRGB input, default viewing
-      conditions), NaN values and negatives set to 0 first.
+      conditions), NaN values and negatives set to 0 first. NaN, with a
+      ``RuntimeWarning``, where FLIP is undefined (:func:`flip_undefined`: a black
+      reference; flip-evaluator would abort the process).
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
     reported, not hidden). Grey (H, W) images are compared as RGB.
@@ -256,18 +297,20 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
     x, r = _rgb(image), _rgb(reference)
     if x.shape != r.shape:
         raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
+    if r.ndim != 3 or r.size == 0:
+        raise ValueError(f"reference: expected a non-empty (H, W) or (H, W, C) image, got shape {r.shape}")
     diff2 = (x - r) ** 2
     result = {"rmse": float(np.sqrt(diff2.mean())),
               "relmse": float((diff2 / (r * r + RELMSE_EPSILON)).mean()),
               "flip": math.nan}
     if flip:
+        reason = flip_undefined(r)
+        if reason is not None:
+            warnings.warn(f"FLIP not computed (NaN): {reason}", RuntimeWarning, stacklevel=2)
+            return result
         import flip_evaluator
 
-        def clean(a):
-            return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4),
-                                        dtype=np.float32)
-
-        _, mean, _ = flip_evaluator.evaluate(clean(r), clean(x), "HDR", applyMagma=False)
+        _, mean, _ = flip_evaluator.evaluate(_flip_clean(r), _flip_clean(x), "HDR", applyMagma=False)
         result["flip"] = float(mean)
     return result
 
@@ -275,15 +318,22 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
 # ------------------------------------------------------------------------------ sweep
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
-              reference: Path, progress: bool = True,
-              render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
-    """Run ``tasks`` (skipping finished ones), then score each render against ``reference``."""
+              reference: Path, progress: bool = True, render: Callable[..., RenderRecord] = render_one,
+              notes: list[str] | None = None) -> list[RenderRecord]:
+    """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
+
+    Where FLIP is undefined for the reference (:func:`flip_undefined`) every row's FLIP
+    is NaN and one line saying why is appended to ``notes``.
+    """
     from tqdm import tqdm
 
     from pointillist.imaging.io import read_exr
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
+    reason = flip_undefined(ref_image)
+    if reason is not None and notes is not None:
+        notes.append(f"FLIP not computed (NaN in every row): {reason}")
     records = []
     bar = tqdm(tasks, desc="compare", unit="render", disable=not progress)
     for task in bar:
@@ -291,7 +341,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
         records.append(render(scene_path, task.method, task.value, task.seed, params, out_dir, key))
     for record in records:
         image = read_exr(Path(out_dir) / "renders" / record.exr).image
-        record.__dict__.update(image_errors(image, ref_image))
+        record.__dict__.update(image_errors(image, ref_image, flip=reason is None))
     return records
 
 
@@ -385,13 +435,11 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         count Mitsuba cannot take, or a reference of the wrong size.
     """
     from pointillist.compare_report import write_report
-    from pointillist.scene import check_sample_count
+    from pointillist.scene import check_sample_count, check_scene_file
 
     params = dict(params or {})
     tasks = sweep_tasks(methods, spp, seeds)
-    scene = Path(scene)
-    if not scene.is_file():
-        raise UsageError(f"scene: no such file: {scene}")
+    scene = check_scene_file(scene)
     out = Path(out_dir) if out_dir else Path("out") / "compare" / scene.stem
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} exists and is not a folder")
@@ -404,6 +452,7 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
     if reference is not None:
         _check_reference(Path(reference), size)
     out.mkdir(parents=True, exist_ok=True)
+    notes: list[str] = []
     cluster_renders = 0
     if workers or scheduler:
         with open_client(workers, scheduler) as client:
@@ -417,11 +466,29 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
         reference = render_reference(str(scene), params, str(out), reference_spp)
         _check_reference(reference, size)
-    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress)
+        taken = _reference_spp(reference)
+        if taken is not None and taken != reference_spp:
+            note = (f"reference: the stratified sampler took {taken} spp for the {reference_spp} asked "
+                    "(it rounds up to a square)")
+            notes.append(note)
+            log(note)
+    before = len(notes)
+    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
+                        notes=notes)
+    for note in notes[before:]:
+        log(note)
     paths = write_report(records, out, scene=str(scene), reference=str(reference),
-                         title=f"Sampler comparison: {scene.name}")
+                         title=f"Sampler comparison: {scene.name}", notes=notes)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
-                         cluster_renders=cluster_renders)
+                         cluster_renders=cluster_renders, notes=notes)
+
+
+def _reference_spp(reference: Path) -> int | None:
+    """The samples per pixel a rendered reference took (its EXR header), or None."""
+    from pointillist.imaging.io import read_exr
+
+    value = read_exr(reference).metadata.get("spp")
+    return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
 def _scene_size(scene: Path, params: dict) -> tuple[int, int]:

@@ -117,8 +117,11 @@ _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "ex
                "exr")
 
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
-                 reference: str, title: str | None = None) -> dict[str, Path]:
-    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``."""
+                 reference: str, title: str | None = None, notes: Sequence[str] = ()) -> dict[str, Path]:
+    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``.
+
+    ``notes`` (one line each, e.g. why FLIP is NaN) are listed under the table's caption.
+    """
     from pointillist.imaging.io import atomic_write
 
     out = Path(out_dir)
@@ -141,6 +144,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
              f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
              "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
+             *[f"- {note}" for note in notes], *([""] if notes else []),
              "| method | setting | spp | seeds | time (s) | compile (s) | RMSE | relMSE | FLIP |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
@@ -216,8 +220,11 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
         for slope, style in ((-1, ":"), (-1.5, "--"), (-2, "-.")):
             ax.plot([x0, x1], [y0, y0 * (x1 / x0) ** slope], style, color="grey", linewidth=1,
                     label=f"slope {slope:g}")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    if xs_all:
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    else:  # every MSE 0 (a render equal to the reference, e.g. a black scene): nothing to put on log axes
+        ax.text(0.5, 0.5, "no point with MSE > 0 to plot", transform=ax.transAxes, ha="center")
     ax.set_xlabel(x_label)
     ax.set_ylabel("MSE against the reference")
     ax.grid(True, which="both", alpha=0.3)
