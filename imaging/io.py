@@ -17,6 +17,7 @@ PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -90,21 +91,49 @@ def atomic_write(path: str | os.PathLike, write) -> None:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``.
 
     The one way this project writes files: a reader never sees a half-written file, and a
-    failed write leaves the old file (if any) and no temporary file behind.
+    failed or interrupted write (an exception, Ctrl-C, SIGTERM under ``pointillist``) leaves
+    the old file (if any) and no temporary file behind. A folder that cannot be written
+    raises the ``OSError`` (e.g. ``PermissionError``) with ``filename`` the target and a
+    message naming it.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = None
     try:
+        # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that the
+        # KeyboardInterrupt they raise (see pointillist.cli) always finds `tmp` set and removes the file.
+        held = _hold_signals()
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+        except OSError as error:
+            raise type(error)(error.errno, f"cannot write {path}: {error.strerror or error}", str(path)) from None
+        finally:
+            _release_signals(held)
+        os.close(fd)
         write(tmp)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
         raise
+
+
+_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
+
+
+def _hold_signals():
+    """Block SIGINT and SIGTERM in this thread (POSIX); returns the mask to restore."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+
+
+def _release_signals(mask) -> None:
+    if mask is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def read_exr(path: str | os.PathLike) -> EXRImage:

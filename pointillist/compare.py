@@ -451,7 +451,10 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         check_sample_count(*size, int(count))  # before any render starts (and its progress bar)
     if reference is not None:
         _check_reference(Path(reference), size)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"--out: cannot create the folder {out} ({error.strerror or error})") from None
     notes: list[str] = []
     cluster_renders = 0
     if workers or scheduler:
