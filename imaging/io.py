@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -170,12 +171,21 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"path: no such EXR file: {path}")
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            header = dict(exr.header())
-            channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
-    except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
-        raise ValueError(f"path: {path} is not a readable EXR file ({error})") from None
+    with _OutputCapture() as captured:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as exr:
+                header = dict(exr.header())
+                channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+        except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
+            failure = error
+        else:
+            failure = None
+    if failure is not None:
+        # OpenEXR prints its own diagnosis (captured): its first line says more than the exception.
+        lines = [line.removeprefix(f"{path}: ").strip() for line in captured.text.splitlines() if line.strip()]
+        detail = next((line for line in lines if not line.startswith("Warning:")), None) or str(failure)
+        raise ValueError(f"path: {path} is not a readable EXR file ({detail})") from None
+    captured.replay()
     if not channels:
         raise ValueError(f"path: {path} holds no channels")
     _INPUTS.add(_file_id(path))
@@ -193,6 +203,52 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
         raise ValueError(f"path: {path} has no Y or RGB channels (has {sorted(channels)})")
     metadata = {k: _plain(v) for k, v in header.items() if k not in _RESERVED}
     return EXRImage(np.ascontiguousarray(image), metadata, channels)
+
+
+class _OutputCapture:
+    """Capture what C++ libraries write to file descriptors 1 and 2 inside the block (OpenEXR prints
+    its diagnostics there, some on stdout).
+
+    ``text`` holds both afterwards; :meth:`replay` writes them back where they were going (when
+    they were not an error's).
+    """
+
+    def __enter__(self):
+        self._saved = []
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        for fd in (1, 2):
+            try:
+                saved = os.dup(fd)
+            except OSError:  # a closed descriptor: nothing to capture
+                continue
+            capture = tempfile.TemporaryFile()
+            self._saved.append((fd, saved, capture))
+            os.dup2(capture.fileno(), fd)
+        return self
+
+    def __exit__(self, *exc):
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        self.parts = []
+        for fd, saved, capture in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+            capture.seek(0)
+            self.parts.append(capture.read().decode(errors="replace"))
+            capture.close()
+        return False
+
+    @property
+    def text(self) -> str:
+        return "".join(self.parts)
+
+    def replay(self) -> None:
+        for (fd, _, _), text in zip(self._saved, self.parts):
+            stream = sys.stdout if fd == 1 else sys.stderr
+            if text:
+                stream.write(text)
+                stream.flush()
 
 
 def _plain(value: Any) -> Any:

@@ -125,15 +125,16 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         image, metadata, _layers = read_image(source)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    notes: list[str] = []
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]
+        notes.append("post: warning: the input's alpha channel is dropped (the steps run on RGB)")
     linear = source.suffix.lower() == ".exr"
     before = image
     current = as_tensor(image)
     known = known_steps()
     reports: list[tuple[str, str, dict[str, float]]] = []
     done = []
-    notes: list[str] = []
     for spec, kwargs in pipeline:
         if linear and not spec.linear:
             current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
