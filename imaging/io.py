@@ -70,7 +70,11 @@ def _file_id(path: str | os.PathLike) -> tuple[int, int] | None:
 
 def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = (),
                       name: str = "path") -> Path:
-    """Check that ``path`` may be written: its folder exists, it is not an input.
+    """Check that ``path`` may be written: its folder exists and takes new files, it is not an input.
+
+    Writability is probed by creating (and removing) a temporary file in the folder: permission
+    bits do not tell for root, an immutable folder or ``/proc``. Commands call this before their
+    work, so that an output that cannot be written fails first.
 
     Raises ValueError naming ``name``.
     """
@@ -79,6 +83,11 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
         raise ValueError(f"{name}: {path} is a directory, expected a file name")
     if not path.parent.exists():
         raise ValueError(f"{name}: folder {path.parent} does not exist")
+    try:
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as error:
+        raise ValueError(f"{name}: cannot write {path} ({error.strerror or error})") from None
     target = _file_id(path)
     if target is not None:
         ids = set(_INPUTS)

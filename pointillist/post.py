@@ -104,6 +104,12 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         raise UsageError(f"--output: folder {out.parent} does not exist")
     if out.is_dir():
         raise UsageError(f"--output: {out} is a folder, expected a file name")
+    from pointillist.imaging.io import check_output_path
+
+    try:
+        check_output_path(out, [source], name="--output")
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     plot_path = None
     if plot or plot_file:
         plot_path = Path(plot_file) if plot_file else out.with_name(out.stem + "_histogram.png")
@@ -111,8 +117,6 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
             raise UsageError(f"--plot-file: expected a .png file name, got {plot_path}")
         if plot_path.resolve() == out.resolve():
             raise UsageError(f"--plot-file: {plot_path} is the --output file")
-        from pointillist.imaging.io import check_output_path
-
         try:
             check_output_path(plot_path, [source], name="--plot")
         except ValueError as error:
