@@ -71,7 +71,7 @@ def main() -> int:
     from pointillist.distributed import run_tasks, start_cluster
     from pointillist.tiles import RenderTask, render_task
 
-    mi = pointillist.setup()
+    pointillist.setup()
     params = {"res": str(args.res)}
 
     def sweep(seed0):

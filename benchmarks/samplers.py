@@ -116,7 +116,8 @@ def main() -> None:
     lines += ["", "**Poisson set generation** (Bridson on the torus, NumPy, not the shipped sets) against one 64 spp "
               "render of edges.xml", "", "| points | generation (ms) | r / r_hex | share of 64 spp render |",
               "|---:|---:|---:|---:|"]
-    from pointillist.plugins.samplers.poisson import generate_poisson_disk_points, hexagonal_radius, toroidal_min_distance
+    from pointillist.plugins.samplers.poisson import (generate_poisson_disk_points, hexagonal_radius,
+                                                      toroidal_min_distance)
 
     for n in (16, 64, 256, 1024):
         gen = []

@@ -13,6 +13,6 @@ from pointillist.llvm import ensure_llvm as _ensure_llvm
 
 _ensure_llvm()
 
-from pointillist.imaging._array import as_tensor, to_numpy  # noqa: E402
+from pointillist.imaging.arrays import as_tensor, to_numpy  # noqa: E402
 
 __all__ = ["as_tensor", "to_numpy"]

@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
-from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -45,6 +45,8 @@ __all__ = [
     "srgb_decode",
     "srgb_encode_values",
     "srgb_decode_values",
+    "hsv_from_rgb_values",
+    "rgb_from_hsv_values",
 ]
 
 #: Rec. 709 / sRGB luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.3).
@@ -127,8 +129,19 @@ def _finite(values: Float) -> Float:
     return dr.select(dr.isnan(values), 0.0, dr.clip(values, -_HUGE, _HUGE))
 
 
-def _hsv_from_rgb(r: Float, g: Float, b: Float) -> tuple[Float, Float, Float]:
-    """HSV of linear R, G, B arrays (OpenCV's float formula; ties resolve R, then G, then B)."""
+def hsv_from_rgb_values(r: Float, g: Float, b: Float) -> tuple[Float, Float, Float]:
+    """HSV of R, G, B Dr.Jit arrays (OpenCV's float formula; ties resolve R, then G, then B).
+
+    The per-value formula behind :func:`rgb_to_hsv` (no NaN/inf handling): H in degrees
+    0..360, S 0..1, V = max(R, G, B).
+
+    Examples
+    --------
+    >>> from drjit.llvm import Float
+    >>> from pointillist.imaging.colour import hsv_from_rgb_values
+    >>> [float(c[0]) for c in hsv_from_rgb_values(Float(0.5), Float(1.0), Float(0.5))]
+    [120.0, 0.5, 1.0]
+    """
     v = dr.maximum(dr.maximum(r, g), b)
     delta = v - dr.minimum(dr.minimum(r, g), b)
     s = dr.select(v > 0.0, delta / v, 0.0)
@@ -140,8 +153,18 @@ def _hsv_from_rgb(r: Float, g: Float, b: Float) -> tuple[Float, Float, Float]:
     return h, s, v
 
 
-def _rgb_from_hsv(h: Float, s: Float, v: Float) -> tuple[Float, Float, Float]:
-    """R, G, B of H (degrees, wrapped), S, V arrays (the hexcone sectors)."""
+def rgb_from_hsv_values(h: Float, s: Float, v: Float) -> tuple[Float, Float, Float]:
+    """R, G, B of H (degrees, wrapped), S, V Dr.Jit arrays (the hexcone sectors).
+
+    The per-value formula behind :func:`hsv_to_rgb`, inverse of :func:`hsv_from_rgb_values`.
+
+    Examples
+    --------
+    >>> from drjit.llvm import Float
+    >>> from pointillist.imaging.colour import rgb_from_hsv_values
+    >>> [float(c[0]) for c in rgb_from_hsv_values(Float(120.0), Float(0.5), Float(1.0))]
+    [0.5, 1.0, 0.5]
+    """
     h = h * (1.0 / 60.0)
     h = h - 6.0 * dr.floor(h * (1.0 / 6.0))  # wrap to [0, 6)
     sector = dr.floor(h)
@@ -191,7 +214,7 @@ def rgb_to_hsv(image: Any) -> TensorXf:
     [[[30.0, 1.0, 1.0]]]
     """
     tensor = _rgb_tensor(image)
-    return _map_pixels(tensor, lambda r, g, b: _hsv_from_rgb(_finite(r), _finite(g), _finite(b)))
+    return _map_pixels(tensor, lambda r, g, b: hsv_from_rgb_values(_finite(r), _finite(g), _finite(b)))
 
 
 @eager_if_shared
@@ -218,7 +241,7 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     [[[0.0, 0.0, 0.5]]]
     """
     tensor = _rgb_tensor(image)
-    return _map_pixels(tensor, lambda h, s, v: _rgb_from_hsv(_finite(h), _finite(s), _finite(v)))
+    return _map_pixels(tensor, lambda h, s, v: rgb_from_hsv_values(_finite(h), _finite(s), _finite(v)))
 
 
 @eager_if_shared
@@ -269,8 +292,8 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
         checked.append(dr.opaque(Float, number))
     shift, s_scale, v_scale = checked
     def adjust(r: Float, g: Float, b: Float) -> Triple:
-        h, s, v = _hsv_from_rgb(_finite(r), _finite(g), _finite(b))
-        return _rgb_from_hsv(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
+        h, s, v = hsv_from_rgb_values(_finite(r), _finite(g), _finite(b))
+        return rgb_from_hsv_values(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
 
     return _map_pixels(_rgb_tensor(image), adjust)
 

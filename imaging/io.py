@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from pointillist.imaging._array import as_tensor, to_numpy
+from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
            "to_8bit"]

@@ -39,12 +39,12 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32, UInt64
 
-from pointillist.imaging._array import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
-__all__ = ["METHODS", "KEYS_A", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
+__all__ = ["INTERPOLATIONS", "KEYS_A", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
 
 #: The interpolation methods.
-METHODS = ("nearest", "bilinear", "bicubic")
+INTERPOLATIONS = ("nearest", "bilinear", "bicubic")
 #: Keys' recommended kernel parameter (Keys 1981); OpenCV's INTER_CUBIC uses -0.75.
 KEYS_A = -0.5
 
@@ -54,8 +54,8 @@ MAX_RESIZE_VALUES = 2**31 - 1
 
 
 def _check_method(method: Any) -> str:
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"method: expected one of {', '.join(map(repr, METHODS))}, got {method!r}")
+    if not isinstance(method, str) or method not in INTERPOLATIONS:
+        raise ValueError(f"method: expected one of {', '.join(map(repr, INTERPOLATIONS))}, got {method!r}")
     return method
 
 

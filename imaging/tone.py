@@ -40,8 +40,9 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from pointillist.imaging._array import TensorXf, _check_shape, as_tensor, eager_if_shared
-from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_encode_values, _hsv_from_rgb, _rgb_from_hsv
+from pointillist.imaging.arrays import TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar
+from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, hsv_from_rgb_values, rgb_from_hsv_values,
+                                        srgb_encode_values)
 
 __all__ = [
     "NonFiniteWarning",
@@ -115,15 +116,7 @@ def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
     return int(value)
 
 
-def _opaque(value: float) -> Float:
-    return dr.opaque(Float, float(value))
-
-
 # --------------------------------------------------------------------------- shared machinery
-
-def _is_uint8(image: Any) -> bool:
-    return isinstance(image, np.ndarray) and image.dtype == np.uint8
-
 
 def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
     """Per-pixel UInt32 values of a uint8 image, read in place (no float conversion, no gather).
@@ -134,7 +127,7 @@ def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[i
     little-endian UInt32 words (four pixels each, for the pair histogram), or None when the
     image cannot be viewed as whole aligned words.
     """
-    _check_shape(image.shape, name, None, False)
+    check_shape(image.shape, name, None, False)
     flat = np.ascontiguousarray(image).reshape(-1)
     return UInt32(UInt8(flat)), tuple(image.shape), _words(flat)
 
@@ -175,7 +168,7 @@ def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
 
 def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float, where: str) -> TensorXf:
     """Apply ``function`` per value; uint8 input through a 256-entry table of the same function."""
-    if _is_uint8(image):
+    if is_uint8(image):
         table = function(dr.arange(Float, 256))
         values, shape, _ = _u8_indices(image)
         return _done(TensorXf(dr.gather(Float, table, values), shape))
@@ -229,7 +222,8 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     g = _positive(gamma, "gamma")
     a = _positive(a, "a")
     max_value = _positive(max_value, "max_value")
-    scale, exponent, top = _opaque(1.0 / (a * max_value)), _opaque(1.0 / g), _opaque(max_value)
+    scale, exponent = opaque_scalar(Float, 1.0 / (a * max_value)), opaque_scalar(Float, 1.0 / g)
+    top = opaque_scalar(Float, max_value)
 
     def curve(x: Float) -> Float:
         v = dr.maximum(x, 0.0) * scale
@@ -297,9 +291,9 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     slope3 = (max_value - s2) / (max_value - r2) if r2 < max_value else 0.0
     # With r1 == r2 the middle segment is empty: its upper bound sits just below r1.
     upper = r2 if r2 > r1 else float(np.nextafter(np.float32(r1), np.float32(-np.inf)))
-    k1, k2, k3 = _opaque(slope1), _opaque(slope2), _opaque(slope3)
-    b1, b2, top = _opaque(r1), _opaque(r2), _opaque(max_value)
-    o1, o2, mid_top = _opaque(s1), _opaque(s2), _opaque(upper)
+    k1, k2, k3 = opaque_scalar(Float, slope1), opaque_scalar(Float, slope2), opaque_scalar(Float, slope3)
+    b1, b2, top = opaque_scalar(Float, r1), opaque_scalar(Float, r2), opaque_scalar(Float, max_value)
+    o1, o2, mid_top = opaque_scalar(Float, s1), opaque_scalar(Float, s2), opaque_scalar(Float, upper)
 
     def curve(x: Float) -> Float:
         x = dr.clip(x, 0.0, top)
@@ -349,8 +343,9 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     """
     levels = _levels(levels)
     max_value = _positive(max_value, "max_value")
-    n, top, step = _opaque(levels), _opaque(max_value), _opaque(max_value / (levels - 1))
-    last = _opaque(levels - 1)
+    n, top = opaque_scalar(Float, levels), opaque_scalar(Float, max_value)
+    step = opaque_scalar(Float, max_value / (levels - 1))
+    last = opaque_scalar(Float, levels - 1)
 
     def curve(x: Float) -> Float:
         k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
@@ -409,7 +404,7 @@ def lut(image: Any, table: Any) -> TensorXf:
     >>> np.asarray(lut(np.array([[0, 1, 255]], np.uint8), 255 - np.arange(256))).tolist()
     [[255.0, 254.0, 0.0]]
     """
-    if _is_uint8(image):
+    if is_uint8(image):
         values, shape, _ = _u8_indices(image)
         channels = shape[2] if len(shape) == 3 else 1
         table, width = _table(table, channels)
@@ -525,13 +520,13 @@ def _bins(image: Any, levels: int, max_value: float):
     pass computes them, as ``UInt8`` for levels <= 256 (a quarter of the bytes of float,
     and packed words for the pair histogram) or ``UInt32``.
     """
-    if _is_uint8(image) and levels == 256 and max_value == 255.0:
+    if is_uint8(image) and levels == 256 and max_value == 255.0:
         flat = np.ascontiguousarray(image).reshape(-1)
         words, tail = _packed(flat)
         return UInt8(flat), words, tail, tuple(image.shape), None
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
-    scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
+    scale, last = opaque_scalar(Float, (levels - 1) / max_value), opaque_scalar(Float, levels - 1)
     index = UInt32(dr.clip(dr.round(clean * scale), 0.0, last))
     if levels > _PAIR_LEVELS:
         dr.eval(index, count)
@@ -587,15 +582,15 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     """
     levels = _levels(levels, high=65536)
     max_value = _positive(max_value, "max_value")
-    if _is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
+    if is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
         flat = np.ascontiguousarray(image).reshape(-1)
         return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value)
-    if not _is_uint8(image):
+    if not is_uint8(image):
         tensor = as_tensor(image, channels=(1, 3))
         if tensor.ndim == 3 and tensor.shape[2] == 3:
             return _equalize_colour(tensor, levels, max_value)
     else:  # uint8 grey (uint8 RGB took the HSV branch above)
-        _check_shape(image.shape, "image", (1, 3), False)
+        check_shape(image.shape, "image", (1, 3), False)
     bins, words, tail, shape, count = _bins(image, levels, max_value)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
@@ -610,18 +605,18 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorX
     bad = ~(dr.isfinite(rgb.x) & dr.isfinite(rgb.y) & dr.isfinite(rgb.z))
     count = dr.zeros(UInt32, 1)
     dr.scatter_add(count, 1, UInt32(0), active=bad)
-    top = _opaque(max_value)
+    top = opaque_scalar(Float, max_value)
     channels = [dr.clip(dr.select(dr.isfinite(c), c, dr.select(c > 0, top, 0.0)), 0.0, top)
                 for c in (rgb.x, rgb.y, rgb.z)]
-    h, s, v = _hsv_from_rgb(*channels)
-    scale, last = _opaque((levels - 1) / max_value), _opaque(levels - 1)
+    h, s, v = hsv_from_rgb_values(*channels)
+    scale, last = opaque_scalar(Float, (levels - 1) / max_value), opaque_scalar(Float, levels - 1)
     index = UInt32(dr.clip(dr.round(v * scale), 0.0, last))
     bins = UInt8(index) if levels <= _PAIR_LEVELS else index
     dr.eval(h, s, bins, count)  # one pass: V itself is not kept, only its bin
     words, tail = _packed(np.asarray(bins)) if levels <= _PAIR_LEVELS else (None, None)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
-    r, g, b = _rgb_from_hsv(h, s, dr.gather(Float, table, UInt32(bins)))
+    r, g, b = rgb_from_hsv_values(h, s, dr.gather(Float, table, UInt32(bins)))
     return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
 
 
@@ -719,7 +714,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
     tensor = as_tensor(image, channels=(1, 3))
     nch = tensor.shape[2] if tensor.ndim == 3 else 1
     count = dr.zeros(UInt32, 1)
-    scale = _opaque(2.0 ** exposure)
+    scale = opaque_scalar(Float, 2.0 ** exposure)
 
     def prepare(values: Float) -> tuple[Float, Float]:
         """Sanitised, exposed, clamped channel and its +inf mask (counted); per pixel, so that
@@ -738,7 +733,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
 
     def white_point(values: Float) -> Float:
         if white is not None:
-            return _opaque(min(white, _HDR_MAX))
+            return opaque_scalar(Float, min(white, _HDR_MAX))
         return dr.maximum(dr.max(values), _TINY)  # its own reduction pass
 
     if operator == "clip":
@@ -765,7 +760,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
             return (v * (A * v + C * B) + D * E) / (v * (A * v + B) + D * F) - E / F
 
         w = white if white is not None else k["W"]
-        norm = _opaque(1.0 / float(f(np.float64(min(w, _HDR_MAX)))))
+        norm = opaque_scalar(Float, 1.0 / float(f(np.float64(min(w, _HDR_MAX)))))
         mapped = [f(k["exposure_bias"] * c) * norm for c in channels]
     else:  # aces
         k = ACES_CONSTANTS

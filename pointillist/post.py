@@ -18,10 +18,11 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from pointillist.errors import UsageError
 
-__all__ = ["PostResult", "post_process", "step_list", "histogram_plot"]
+__all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot"]
 
 
 @dataclass
@@ -71,6 +72,64 @@ def _run_step(spec, image, kwargs, notes):
     return result
 
 
+@dataclass
+class AppliedSteps:
+    """What :func:`apply_steps` returns: the image (a lazy Dr.Jit tensor), whether it is still
+    linear light, the steps run (as text, ``tonemap:clip`` included when it was added), the
+    warnings (``notes``) and, with ``report``, per-step statistics."""
+
+    image: Any
+    linear: bool
+    done: list[str]
+    notes: list[str] = field(default_factory=list)
+    reports: list[tuple[str, str, dict[str, float]]] = field(default_factory=list)
+
+
+def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report: bool = False) -> AppliedSteps:
+    """Run post-processing steps on an image array, in order; nothing is read or written.
+
+    ``pipeline`` is step text (``"grey;gamma:2.2;sobel"``, see :mod:`pointillist.steps`) or
+    what :func:`pointillist.steps.parse_steps` returns. ``linear``: the image is linear
+    light (an EXR render); a display step then gets ``tonemap:clip`` first (said in
+    ``notes``). The result stays lazy (a Dr.Jit tensor) unless ``report`` asks for
+    statistics, so a chain of steps fuses where Dr.Jit can fuse it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> out = apply_steps(np.array([[0.0, 100.0], [200.0, 255.0]]), "threshold:level=128")
+    >>> np.asarray(out.image).tolist(), out.done
+    ([[0.0, 0.0], [255.0, 255.0]], ['threshold:level=128'])
+    """
+    from pointillist.imaging import as_tensor
+    from pointillist.steps import parse_steps
+    from pointillist.steps import steps as known_steps
+
+    if isinstance(pipeline, str):
+        pipeline = parse_steps(pipeline)
+    current = as_tensor(image)
+    known = known_steps()
+    reports: list[tuple[str, str, dict[str, float]]] = []
+    done: list[str] = []
+    notes: list[str] = []
+    for spec, kwargs in pipeline:
+        if linear and not spec.linear:
+            current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
+            linear = False
+            done.append("tonemap:clip")
+            notes.append("post: input is linear light; applied tonemap:clip first")
+        elif spec.linear and not linear:
+            raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
+                             "but the image is already display-referred")
+        previous = current
+        current = _run_step(spec, current, kwargs, notes)
+        linear = False if spec.linear else linear
+        done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
+        if report:
+            reports.append((spec.name, _stats(current), spec.report(previous, current) if spec.report else {}))
+    return AppliedSteps(image=current, linear=linear, done=done, notes=notes, reports=reports)
+
+
 def post_process(source: str | os.PathLike | None, output: str | os.PathLike | None, *, steps: str = "",
                  step: Sequence[str] = (), dither: str | None = None, report: bool = False, plot: bool = False,
                  plot_file: str | os.PathLike | None = None) -> PostResult:
@@ -85,7 +144,6 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         and any step that refuses its arguments (one line naming the step).
     """
     from pointillist.steps import parse_steps
-    from pointillist.steps import steps as known_steps
 
     if source is None:
         raise UsageError("input: expected an input image (EXR, PNG, JPEG or TIFF)")
@@ -122,38 +180,20 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         except ValueError as error:
             raise UsageError(str(error)) from None
 
-    from pointillist.imaging import as_tensor
     from pointillist.imaging.io import read_image, write_exr, write_png
 
     try:
         image, metadata, _layers = read_image(source)
     except ValueError as error:
         raise UsageError(str(error)) from None
-    notes: list[str] = []
+    dropped = []
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]
-        notes.append("post: warning: the input's alpha channel is dropped (the steps run on RGB)")
-    linear = source.suffix.lower() == ".exr"
+        dropped.append("post: warning: the input's alpha channel is dropped (the steps run on RGB)")
     before = image
-    current = as_tensor(image)
-    known = known_steps()
-    reports: list[tuple[str, str, dict[str, float]]] = []
-    done = []
-    for spec, kwargs in pipeline:
-        if linear and not spec.linear:
-            current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
-            linear = False
-            done.append("tonemap:clip")
-            notes.append("post: input is linear light; applied tonemap:clip first")
-        elif spec.linear and not linear:
-            raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
-                             "but the image is already display-referred")
-        previous = current
-        current = _run_step(spec, current, kwargs, notes)
-        linear = False if spec.linear else linear
-        done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
-        if report:
-            reports.append((spec.name, _stats(current), spec.report(previous, current) if spec.report else {}))
+    applied = apply_steps(image, pipeline, linear=source.suffix.lower() == ".exr", report=report)
+    current, linear, done, notes, reports = (applied.image, applied.linear, applied.done,
+                                             dropped + applied.notes, applied.reports)
     if out.suffix.lower() == ".exr":
         write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=[source])
     elif linear:

@@ -451,13 +451,13 @@ def test_no_kernel_recompiles_between_thresholds_seeds_and_sizes(mi):
 def test_divmod_without_division_is_exact(mi):
     import drjit as dr
 
-    from pointillist.plugins.integrators.adaptive import _divmod
+    from pointillist.imaging.arrays import divmod_u32
 
     rng = np.random.default_rng(5)
     x = np.concatenate([rng.integers(0, 2 ** 32, 20000, dtype=np.uint64), [0, 2 ** 32 - 1, 2 ** 31]]).astype(np.uint32)
     for d in (1, 3, 257, 4097, 65537, 2 ** 20 + 1, 2 ** 31 - 1):
         x_d = np.concatenate([x, (np.arange(1, 200, dtype=np.uint64) * d - 1).astype(np.uint32)[:199]])
-        q, r = _divmod(mi.UInt32(x_d), d)
+        q, r = divmod_u32(mi.UInt32(x_d), d)
         np.testing.assert_array_equal(np.asarray(q), x_d // np.uint32(d))
         np.testing.assert_array_equal(np.asarray(r), x_d % np.uint32(d))
     assert dr.width(q) == len(x_d)

@@ -1,7 +1,9 @@
-"""Array conventions shared by every imaging operation (imaging/_array.py)."""
+"""Array conventions shared by every imaging operation (imaging/arrays.py)."""
 
 from __future__ import annotations
 
+import doctest
+import math
 import warnings
 
 import drjit as dr
@@ -117,3 +119,22 @@ def test_bad_input_names_the_argument(bad, kind, message):
 def test_channel_restriction():
     with pytest.raises(ValueError, match="image: expected 1 or 3 channels, got 2"):
         as_tensor(np.zeros((2, 2, 2)), channels=(1, 3))
+
+
+def test_shared_helpers():
+    from drjit.llvm import Float, UInt32
+
+    from pointillist.imaging import arrays
+
+    # the module examples (check_shape, is_uint8, opaque_scalar, divmod_u32), and colour's value formulas
+    for module in (arrays, colour):
+        result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.attempted >= 4 and result.failed == 0, module.__name__
+    # the opaque-scalar cache keeps -0.0 and 0.0 apart (equal as keys of a dict) and reuses a value
+    assert math.copysign(1.0, float(arrays.opaque_scalar(Float, -0.0)[0])) == -1.0
+    assert math.copysign(1.0, float(arrays.opaque_scalar(Float, 0.0)[0])) == 1.0
+    assert arrays.opaque_scalar(UInt32, 7) is arrays.opaque_scalar(UInt32, 7)
+    assert arrays.is_uint8(np.zeros(2, np.uint8)) and not arrays.is_uint8(np.zeros(2, np.int8))
+    assert not arrays.is_uint8([1, 2])
+    with pytest.raises(ValueError, match="^frame: expected 1 or 3 channels, got 4$"):
+        arrays.check_shape((2, 2, 4), "frame", (1, 3))

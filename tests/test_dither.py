@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import pointillist.imaging.dither as dither
+import pointillist.imaging.wavefront as wavefront
 import pointillist.imaging.filters
 from pointillist.imaging.dither import (KERNELS, TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, diffuse,
                             dither_error, error_diffusion, floyd_steinberg, halftone, ordered, pattern)
@@ -115,7 +116,7 @@ def test_floyd_steinberg_large_image_matches_reference():
 def test_result_does_not_depend_on_packet_width(monkeypatch, lanes):
     rng = np.random.default_rng(lanes)
     image = (rng.random((37, 29)) * 255).astype(np.float32)
-    monkeypatch.setattr(dither, "_lanes", lambda: lanes)
+    monkeypatch.setattr(wavefront, "verified_lanes", lambda: lanes)
     for name in ("floyd_steinberg", "jarvis_judice_ninke"):
         expected = reference_diffuse(prepare(image), weights_of(name))
         assert np.array_equal(np.asarray(diffuse(image, name)), expected)
@@ -124,19 +125,19 @@ def test_result_does_not_depend_on_packet_width(monkeypatch, lanes):
 def test_overestimated_packet_width_is_caught_and_halved(monkeypatch):
     # The lane count comes from CPU flags; if it exceeds Dr.Jit's real SIMD packet, the one-time
     # check against the one-lane schedule must catch it and fall back to a width that is exact.
-    monkeypatch.setattr(dither, "_packet_width", lambda: 64)
+    monkeypatch.setattr(wavefront, "packet_width", lambda: 64)
     monkeypatch.delenv("POINTILLIST_DITHER_LANES", raising=False)
-    dither._lanes.cache_clear()
+    wavefront.verified_lanes.cache_clear()
     try:
         with pytest.warns(RuntimeWarning, match="narrower than the 64 lanes"):
-            lanes = dither._lanes()
+            lanes = wavefront.verified_lanes()
         assert 1 <= lanes < 64
         rng = np.random.default_rng(5)
         image = (rng.random((2 * lanes + 5, 23)) * 255).astype(np.float32)
         expected = reference_diffuse(prepare(image), weights_of("floyd_steinberg"))
         assert np.array_equal(np.asarray(diffuse(image, "floyd_steinberg")), expected)
     finally:
-        dither._lanes.cache_clear()
+        wavefront.verified_lanes.cache_clear()
 
 
 def test_error_diffusion_matches_reference():
@@ -444,6 +445,10 @@ def test_bad_arguments():
 def test_module_examples_run():
     result = doctest.testmod(dither, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 10 and result.failed == 0
+    import pointillist.imaging.blue_noise as blue_noise_module
+
+    result = doctest.testmod(blue_noise_module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 1 and result.failed == 0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -472,6 +477,33 @@ def test_post_step_functions():
         spec.function(image, method="halftone", levels=3)
 
 
+def test_dither_entry_dispatches_by_method():
+    rng = np.random.default_rng(9)
+    image = (rng.random((13, 11, 3)) * 255).astype(np.float32)
+    same = [
+        (dither.dither(image), floyd_steinberg(image)),
+        (dither.dither(image, "stucki", levels=3, serpentine=True), diffuse(image, "stucki", levels=3, serpentine=True)),
+        (dither.dither(image, "error_diffusion", level=100), error_diffusion(image, 100)),
+        (dither.dither(image, "threshold", level=90), dither.threshold(image, 90)),
+        (dither.dither(image, "ordered"), ordered(image, TEMPLATE_4)),
+        (dither.dither(image, "bayer", n=8, levels=4), ordered(image, bayer(8), levels=4)),
+        (dither.dither(image, "pattern", n=2), dither.pattern(image, bayer(2))),
+        (dither.dither(image, "blue_noise", linear=True), blue_noise(image, linear=True)),
+        (dither.dither(image, "halftone", n=2), dither.halftone(image, 2)),
+    ]
+    for got, expected in same:
+        assert np.array_equal(np.asarray(got), np.asarray(expected))
+    assert set(dither.DITHER_METHODS) == {"threshold", "error_diffusion", *KERNELS, "ordered", "bayer", "blue_noise",
+                                          "pattern", "halftone"}
+    assert dither.dither_options("atkinson") == ("level", "levels", "serpentine", "linear")
+    with pytest.raises(ValueError, match="^method: expected one of threshold, error_diffusion, floyd_steinberg"):
+        dither.dither(image, "nope")
+    with pytest.raises(ValueError, match=r"^levels: not an option of dither method 'halftone' \(its options: n\)$"):
+        dither.dither(image, "halftone", levels=3)
+    with pytest.raises(ValueError, match="levels: expected an integer from 2 to 256"):
+        dither.dither(image, "ordered", levels=1)
+
+
 def test_post_cli_dither_and_report(cli, tmp_path):
     Image = pytest.importorskip("PIL.Image")
     source = tmp_path / "grey.png"
@@ -491,9 +523,11 @@ def test_post_cli_dither_and_report(cli, tmp_path):
 def test_divmod_helper_is_exact():
     from drjit.llvm import UInt32
 
+    from pointillist.imaging.arrays import divmod_u32
+
     a = np.concatenate([np.arange(0, 50000), np.arange(2**32 - 50000, 2**32)]).astype(np.uint32)
     for divisor in (1, 3, 7, 255, 2048, 2049, 65537, 12345679):
-        q, r = dither._divmod(UInt32(a), divisor)
+        q, r = divmod_u32(UInt32(a), divisor)
         assert np.array_equal(np.asarray(q), a // divisor) and np.array_equal(np.asarray(r), a % divisor)
     # and the non-power-of-two template path of ordered dithering
     image = np.random.default_rng(1).integers(0, 256, (11, 13)).astype(np.float32)

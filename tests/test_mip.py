@@ -287,6 +287,37 @@ def test_bad_parameters_raise(mi):
         mi.load_dict({"type": "mip", "fast_axis": "false"})
     with pytest.raises(Exception, match="precision: expected one of auto, half, single"):
         mi.load_dict({"type": "mip", "precision": "double"})
+
+
+@pytest.mark.parametrize("key,value,error,message", [
+    ("window", 5, TypeError, "window: expected a string, got int"),
+    ("colormap", 3, TypeError, "colormap: expected a string, got int"),
+    ("background", "dark", TypeError, "background: expected a number, got str"),
+    ("background", math.nan, ValueError, "background: expected a finite number, got nan"),
+    ("spacing", "1,2", ValueError, "spacing: expected three positive numbers 'sx,sy,sz', got '1,2'"),
+    ("spacing", "1,-2,1", ValueError, "spacing: expected three positive numbers"),
+    ("spacing", 2.0, TypeError, "spacing: expected a string, got float"),
+    ("filename", 3, TypeError, "filename: expected a string, got int"),
+    ("to_world", "abc", TypeError, "to_world: expected a transform or a 4x4 matrix, got str"),
+    ("to_world", 5.0, ValueError, r"to_world: expected a finite 4x4 transform, got shape \(\)"),
+])
+def test_bad_properties_name_the_property(mi, key, value, error, message):
+    from pointillist.plugins.integrators.mip import MIPIntegrator
+
+    props = mi.Properties("mip")
+    props[key] = value
+    with pytest.raises(error, match=message):
+        MIPIntegrator(props)
+    with pytest.raises(RuntimeError, match=message):  # through Mitsuba's loader
+        mi.load_dict({"type": "mip", key: value})
+
+
+def test_good_properties_are_read(mi):
+    integrator = mi.load_dict({"type": "mip", "window": "40,400", "colormap": "grey", "background": -5,
+                               "spacing": "1, 2 3"})
+    assert integrator.background == -5.0 and isinstance(integrator.background, float)
+    integrator.set_volume(np.zeros((2, 3, 4), np.float32))
+    assert tuple(integrator.volume.spacing) == (1.0, 2.0, 3.0)
     integrator = mi.load_dict({"type": "mip"})
     with pytest.raises(RuntimeError, match="no volume"):
         integrator.project_rays(mi.Ray3f(mi.Point3f(0, 0, 0), mi.Vector3f(0, 0, 1)))

@@ -191,3 +191,18 @@ def test_tonemap_on_display_input_is_refused(tmp_path, capsys):
     write_png(source, np.zeros((3, 3)), srgb=False, max_value=255)
     status, _, err = run(capsys, source, "-o", tmp_path / "t.png", "--steps", "tonemap:reinhard")
     assert status == 2 and "linear" in err
+
+
+def test_apply_steps_docstring_and_linear_input():
+    """apply_steps runs on arrays: its example runs, and linear input gets tonemap:clip first."""
+    import doctest
+
+    import pointillist.post as post
+
+    result = doctest.testmod(post, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 2 and result.failed == 0
+    out = post.apply_steps(np.array([[0.0, 0.5], [1.0, 4.0]], np.float32), "threshold:level=128", linear=True)
+    assert out.done == ["tonemap:clip", "threshold:level=128"] and not out.linear
+    # clip then sRGB-encode: 0 -> 0, 0.5 -> 188, 1 and 4 -> 255; threshold 128
+    assert np.asarray(out.image).tolist() == [[0.0, 255.0], [255.0, 255.0]]
+    assert out.notes == ["post: input is linear light; applied tonemap:clip first"]

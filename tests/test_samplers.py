@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import math
 import warnings
 
@@ -212,6 +213,35 @@ def test_clone_and_fork(mi):
 def test_bad_sample_count(mi):
     with pytest.raises(Exception, match="sample_count"):
         mi.load_dict({"type": "jitter", "sample_count": 0})
+
+
+@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
+@pytest.mark.parametrize("key,value,error,message", [
+    ("sample_count", "abc", TypeError, "sample_count: expected an integer, got str"),
+    ("sample_count", 2.5, TypeError, "sample_count: expected an integer, got float"),
+    ("sample_count", -1, ValueError, "sample_count: expected an integer in 1..16777216, got -1"),
+    ("sample_count", 0, ValueError, "sample_count: expected an integer in 1..16777216, got 0"),
+    ("seed", "7", TypeError, "seed: expected an integer, got str"),
+    ("seed", 1.5, TypeError, "seed: expected an integer, got float"),
+])
+def test_bad_properties_name_the_property(mi, name, key, value, error, message):
+    # read through the shared property readers (plugins/properties.py) before Mitsuba coerces them
+    cls = importlib.import_module(f"pointillist.plugins.samplers.{name}").PLUGIN_CLASS
+    props = mi.Properties(name)
+    props[key] = value
+    with pytest.raises(error, match=message):
+        cls(props)
+    with pytest.raises(RuntimeError, match=message):  # through Mitsuba's loader
+        mi.load_dict({"type": name, key: value})
+
+
+def test_set_sample_count_checks_its_argument(mi):
+    sampler = mi.load_dict({"type": "grid", "sample_count": 4})
+    for bad in (0, -3, 2.0, "8", True):
+        with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
+            sampler.set_sample_count(bad)
+    sampler.set_sample_count(np.int64(9))
+    assert sampler.sample_count() == 9 and (sampler.rows, sampler.cols) == (3, 3)
 
 
 # ------------------------------------------------------------------- in scenes

@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.plugins.bsdfs._common import texture_property
+from pointillist.plugins.properties import texture_property
 
 __all__ = ["LambertBSDF", "PLUGIN_NAME", "PLUGIN_CLASS"]
 

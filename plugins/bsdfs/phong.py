@@ -5,7 +5,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.plugins.bsdfs._common import safe_power, texture_property, texture_range
+from pointillist.plugins.bsdfs._common import safe_power, texture_range
+from pointillist.plugins.properties import texture_property
 
 __all__ = ["PhongBSDF", "PLUGIN_NAME", "PLUGIN_CLASS"]
 

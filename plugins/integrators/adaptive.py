@@ -15,8 +15,12 @@ from statistics import NormalDist
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.plugins.bsdfs._common import boolean_property, integer_property, number_property, string_property
+from pointillist.imaging.arrays import divmod_u32
+from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
 from pointillist.plugins.integrators._common import develop_film
+from pointillist.plugins.integrators._lanes import (add_blocks, add_by_pixel, all_finite, compact1by1, compact_flags,
+                                                    part1by1)
+from pointillist.plugins.properties import boolean_property, integer_property, number_property, string_property
 
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
 
@@ -45,9 +49,6 @@ _NEW_DY = (0, 1, 1, 1, 2)
 #: point (0..4); the four corners (codes 0, 2, 6, 8) are the parent's corners.
 _CODE_TO_NEW = (0, 0, 0, 1, 2, 3, 0, 4, 0)
 
-#: Rec. 709 luminance weights (the ones ``mi.luminance`` uses), for the variance criterion.
-_LUMINANCE = (0.212671, 0.715160, 0.072169)
-
 
 def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
     """Display value 0..255 of a linear colour: ``255 encode(clip(2^exposure value, 0, 1))``.
@@ -62,16 +63,6 @@ def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
     scale = 2.0 ** exposure if isinstance(exposure, (int, float)) else dr.exp2(exposure)
     v = dr.clip(value * scale, 0.0, 1.0)
     return (srgb_encode_values(v) if srgb else v) * 255.0
-
-
-def _part1by1(x):
-    """Spread the low 16 bits of a UInt32 to the even bits (Morton code helper)."""
-    x = x & 0x0000FFFF
-    x = (x | (x << 8)) & 0x00FF00FF
-    x = (x | (x << 4)) & 0x0F0F0F0F
-    x = (x | (x << 2)) & 0x33333333
-    x = (x | (x << 1)) & 0x55555555
-    return x
 
 
 def _batch_seed(seed: int, batch: int) -> int:
@@ -328,7 +319,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         L, valid, aux = self.nested.sample(scene, sampler, ray, sensor.get_medium(), True)
         L = L * weight
         channels = [L.x, L.y, L.z, dr.select(valid, 1.0, 0.0)] + [mi.Float(a) for a in aux]
-        finite = _finite(channels)
+        finite = all_finite(channels)
         if display:
             shown = self._display(channels)
             channels = channels + [shown.x, shown.y, shown.z]
@@ -358,7 +349,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         """Display values 0..255 (Color3f) of a sample, NaN where it is invalid."""
         colour = mi.Color3f(channels[0], channels[1], channels[2])
         shown = srgb_display(colour, dr.opaque(mi.Float, self.exposure), self.srgb)
-        return dr.select(_finite(channels), shown, dr.nan)
+        return dr.select(all_finite(channels), shown, dr.nan)
 
     # -- range criterion ------------------------------------------------------------------
     #
@@ -398,7 +389,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
         # Batch 0: the uniform lattice of level min_depth (min_depth 0: the pixel corners,
         # (W + 1) x (H + 1) rays), step h = 2^-min_depth pixels.
-        ly, lx = _divmod(dr.arange(mi.UInt32, stride * rows), stride)
+        ly, lx = divmod_u32(dr.arange(mi.UInt32, stride * rows), stride)
         step = dr.opaque(mi.Float, 0.5 ** m)
         sampler = self._sampler(sensor, seed, 0, stride * rows, place_rays=True)
         lattice, finite = self._trace(scene, sensor, sampler,
@@ -410,7 +401,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         # Pixel sums over the (2^m + 1)^2 lattice points of each pixel: trapezoidal
         # weights w(u) w(v) h^2 (w = 1/2 on the pixel border, 1 inside) for ``area``,
         # 1 for ``equal``. One lane per pixel, a symbolic loop over its points.
-        py, px = _divmod(dr.arange(mi.UInt32, n_pixels), width)
+        py, px = divmod_u32(dr.arange(mi.UInt32, n_pixels), width)
         base = (py << o_shift) * o_stride + (px << o_shift)
         h2 = dr.opaque(mi.Float, 0.25 ** m)
 
@@ -437,7 +428,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         sums, valid_n = list(state[2:-1]), state[-1]
         count = dr.full(mi.Float, float((side + 1) ** 2), n_pixels)
         dr.eval(sums, valid_n, count)
-        del state, py, px, base, zero
+        del state, py, px, zero  # (base: read by the loop body above)
         if m >= self.max_depth:
             return sums, valid_n, count
 
@@ -449,20 +440,20 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         cells = n_pixels << (2 * m)
 
         def lattice_square(lane):
-            sy, sx = _divmod(lane >> two_m, width)
-            i = (sx << o_shift) | _compact1by1(lane & local_mask)
-            j = (sy << o_shift) | _compact1by1((lane & local_mask) >> 1)
+            sy, sx = divmod_u32(lane >> two_m, width)
+            i = (sx << o_shift) | compact1by1(lane & local_mask)
+            j = (sy << o_shift) | compact1by1((lane & local_mask) >> 1)
             c00 = j * o_stride + i
             corners = (c00, c00 + 1, c00 + o_stride, c00 + o_stride + 1)
             return i, j, [[dr.gather(mi.Float, channel, at) for channel in lattice] for at in corners]
 
         def lane_of(i, j):  # the inverse of lattice_square
             pixel = (j >> o_shift) * o_width + (i >> o_shift)
-            return (pixel << two_m) | _part1by1(i & coordinate_mask) | (_part1by1(j & coordinate_mask) << 1)
+            return (pixel << two_m) | part1by1(i & coordinate_mask) | (part1by1(j & coordinate_mask) << 1)
 
         quad = lattice_square(dr.arange(mi.UInt32, cells))[2]
         flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)
-        sel, pos = _compact(flags)
+        sel, pos = compact_flags(flags)
         self.stats["host_reads"] += 1
         if sel is None:
             return sums, valid_n, count
@@ -563,7 +554,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         if self.weighting == "area":  # ... and each corner goes from A/4 to A/16.
             minus = -3.0 / 16.0 * area
             for values in quad:
-                good = _finite(values[:nc])
+                good = all_finite(values[:nc])
                 for c in range(nc):
                     deltas[c] += dr.select(good, minus * values[c], 0.0)
                 weight_sum += dr.select(good, minus, 0.0)
@@ -585,7 +576,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         dr.eval(outputs)
 
         # 5. Sum the additions of each pixel's run of squares (sorted by pixel).
-        _add_by_pixel(sums + [valid_n, count], pixel, outputs[:nc + 2], o_n)
+        add_by_pixel(sums + [valid_n, count], pixel, outputs[:nc + 2], o_n)
         if last_level:
             return None
 
@@ -593,7 +584,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         mask, slot3, slot4 = outputs[nc + 2:]
         child = dr.arange(mi.UInt32, 4 * n)
         flags = (dr.gather(mi.UInt32, mask, child >> 2) >> (child & 3)) & 1
-        sel, pos = _compact(flags)
+        sel, pos = compact_flags(flags)
         self.stats["host_reads"] += 1
         if sel is None:
             return None
@@ -628,6 +619,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
     def _render_variance(self, scene, sensor, seed, spp, width, height):
         spp = int(spp) if spp else int(sensor.sampler().sample_count())
         n_pixels = width * height
+        wr, wg, wb = REC709_LUMINANCE_WEIGHTS  # for the variance criterion
         limit = self.max_sample_factor * spp
         sums = None
         valid_n = dr.zeros(mi.Float, n_pixels)
@@ -653,17 +645,17 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             # Per-pixel sums of this round: each active pixel owns spp consecutive lanes.
             ok = [dr.select(finite, channel, 0.0) for channel in channels]
             ones = dr.select(finite, 1.0, 0.0)
-            _add_blocks(sums + [valid_n], active, ok + [ones], spp)
+            add_blocks(sums + [valid_n], active, ok + [ones], spp)
             grown = dr.gather(mi.Float, count, active) + spp
             dr.eval(grown)
             dr.scatter(count, grown, active)
-            lum = _LUMINANCE[0] * ok[0] + _LUMINANCE[1] * ok[1] + _LUMINANCE[2] * ok[2]
+            lum = wr * ok[0] + wg * ok[1] + wb * ok[2]
             if rounds == 0:  # shift of the shifted-data variance: the first round's mean
-                shift = dr.select(valid_n > 0, (_LUMINANCE[0] * sums[0] + _LUMINANCE[1] * sums[1]
-                                                + _LUMINANCE[2] * sums[2]) / dr.maximum(valid_n, 1.0), 0.0)
+                shift = dr.select(valid_n > 0, (wr * sums[0] + wg * sums[1] + wb * sums[2]) / dr.maximum(valid_n, 1.0),
+                                  0.0)
                 dr.eval(shift)
             d = dr.select(finite, lum - dr.gather(mi.Float, shift, target), 0.0)
-            _add_blocks([s1, s2], active, [d, d * d], spp)
+            add_blocks([s1, s2], active, [d, d * d], spp)
             dr.eval(count)
             rounds += 1
             nv = dr.maximum(valid_n, 1.0)
@@ -677,91 +669,9 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         return sums, valid_n, count
 
 
-def _add_blocks(totals, owner, values, block: int) -> None:
-    """``totals[c][owner[b]] +=`` the sum of block ``b`` (``block`` consecutive lanes) of
-    ``values[c]``, in place; ``owner`` holds unique indices. Deterministic (no atomics)."""
-    updated = [dr.gather(mi.Float, total, owner) + dr.block_sum(value, block)
-               for total, value in zip(totals, values)]
-    dr.eval(updated)
-    for total, value in zip(totals, updated):
-        dr.scatter(total, value, owner)
-    dr.eval(totals)
-
-
-def _compact(flags):
-    """Indices of the nonzero ``flags`` (UInt32 0 / 1) in order, and the exclusive prefix
-    sum ``pos`` (the index in that list of each flagged lane); ``(None, None)`` when no
-    flag is set. One prefix sum and one scatter: like ``dr.compress``, but ``pos`` is
-    kept for the next level's neighbour look-ups."""
-    dr.eval(flags)
-    inclusive = dr.cumsum(flags)
-    total = int(inclusive[dr.width(flags) - 1])
-    if total == 0:
-        return None, None
-    pos = inclusive - flags
-    dr.eval(pos)
-    sel = dr.empty(mi.UInt32, total)
-    dr.scatter(sel, dr.arange(mi.UInt32, dr.width(flags)), pos, flags != 0)
-    dr.eval(sel)
-    return sel, pos
-
-
-def _divmod(x, d: int):
-    """``(x // d, x % d)`` for a UInt32 ``x`` and a positive Python int ``d``, without
-    integer division (scalar per lane on the CPU) or a per-``d`` literal:
-    ``floor((x + 1/2) / d)`` in double precision with an opaque reciprocal is exact
-    (its rounding error, below 2^-52 x / d < 2^-20 / d, is smaller than the distance
-    1 / (2 d) from (x + 1/2) / d to the nearest integer)."""
-    inverse = dr.opaque(mi.Float64, 1.0 / d)
-    q = mi.UInt32(dr.floor((mi.Float64(x) + 0.5) * inverse))
-    return q, x - q * dr.opaque(mi.UInt32, d)
-
-
-def _add_by_pixel(totals, pixel, values, n) -> None:
-    """``totals[c][pixel[s]] += values[c][s]`` for ``pixel`` sorted ascending, in place.
-
-    Deterministic: the first square of each run of equal pixels sums the run in order
-    (a symbolic loop), then adds it with a scatter-add whose targets are unique, in the
-    same kernel.
-    """
-    width = dr.width(pixel)
-    index = dr.arange(mi.UInt32, width)
-    first = (index == 0) | (pixel != dr.gather(mi.UInt32, pixel, index - 1, index > 0))
-
-    def cond(i, *partial):
-        return first & (i < n) & (dr.gather(mi.UInt32, pixel, i, i < n) == pixel)
-
-    def body(i, *partial):
-        return (i + 1, *[p + dr.gather(mi.Float, v, i) for p, v in zip(partial, values)])
-
-    state = dr.while_loop(state=(mi.UInt32(index), *[dr.zeros(mi.Float, width) for _ in values]),
-                          cond=cond, body=body, label="adaptive_pixel_sum")
-    for total, partial in zip(totals, state[1:]):
-        dr.scatter_add(total, partial, pixel, first, mode=dr.ReduceMode.NoConflicts)
-    dr.eval(totals)
-
-
 def _shown(values) -> mi.Color3f:
     """The display colour carried as the last three channels of a sample."""
     return mi.Color3f(values[-3], values[-2], values[-1])
-
-
-def _compact1by1(x):
-    """Gather the even bits of a UInt32 into its low 16 bits (inverse of ``_part1by1``)."""
-    x = x & 0x55555555
-    x = (x | (x >> 1)) & 0x33333333
-    x = (x | (x >> 2)) & 0x0F0F0F0F
-    x = (x | (x >> 4)) & 0x00FF00FF
-    x = (x | (x >> 8)) & 0x0000FFFF
-    return x
-
-
-def _finite(channels) -> mi.Bool:
-    """True where every channel of a sample is finite (neither NaN nor +-inf)."""
-    ok = dr.isfinite(channels[0])
-    for channel in channels[1:]:
-        ok &= dr.isfinite(channel)
-    return ok
 
 
 def _spread(quad) -> mi.Float:

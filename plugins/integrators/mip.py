@@ -8,10 +8,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from pointillist.plugins.bsdfs._common import boolean_property, number_property, string_property
-from pointillist.plugins.integrators._common import develop_film
 from pointillist.imaging.volumes import Volume, load_volume, volume_texture
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
+from pointillist.plugins.integrators._common import develop_film
+from pointillist.plugins.properties import (boolean_property, number_property, scalar_transform, string_property,
+                                            transform_property)
 
 __all__ = ["MIPIntegrator", "MODES", "MAX_RAY_SAMPLES"]
 
@@ -22,14 +23,16 @@ MODES = ("mip", "minip", "average")
 #: spacing so anisotropic that the step (in voxels of the smallest spacing) is that fine, is refused.
 MAX_RAY_SAMPLES = 2**20
 
-def _scalar_transform(value) -> mi.ScalarTransform4f:
-    """A ``mi.ScalarTransform4f`` from any Mitsuba transform (float or double) or a 4x4 matrix."""
-    matrix = np.array(value.matrix if hasattr(value, "matrix") else value, dtype=np.float64)
-    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
-        raise ValueError(f"to_world: expected a finite 4x4 transform, got shape {matrix.shape}")
-    if abs(np.linalg.det(matrix[:3, :3])) < 1e-30:
-        raise ValueError("to_world: the transform is singular (a zero scale?)")
-    return mi.ScalarTransform4f(mi.ScalarMatrix4f(matrix.astype(np.float32)))
+
+def _parse_spacing(text: str) -> list[float]:
+    """The ``spacing`` property ``"sx,sy,sz"`` (commas or spaces) as three positive finite floats."""
+    try:
+        spacing = [float(s) for s in text.replace(",", " ").split()]
+    except ValueError:
+        spacing = []
+    if len(spacing) != 3 or not all(math.isfinite(s) and s > 0 for s in spacing):
+        raise ValueError(f"spacing: expected three positive numbers 'sx,sy,sz', got {text!r}")
+    return spacing
 
 
 class MIPIntegrator(mi.SamplingIntegrator):
@@ -122,24 +125,22 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self.mode = string_property(props, "mode", "mip", MODES)
         self.interpolation = string_property(props, "interpolation", "trilinear", ("trilinear", "nearest"))
         self.step = number_property(props, "step", 0.5, minimum=0.0, strict=True)  # in voxels
-        self.window = parse_window(str(props.get("window", "")))
-        self.colormap = str(props.get("colormap", "grey"))
+        self.window = parse_window(string_property(props, "window", ""))
+        self.colormap = string_property(props, "colormap", "grey")
         self.lut = colormap_lut(self.colormap)
         self.precision = string_property(props, "precision", "auto", ("auto", "half", "single"))
-        self._background = float(props["background"]) if "background" in props else None
+        self._background = number_property(props, "background", 0.0, allow_inf=True) if "background" in props else None
         self.fast_axis = boolean_property(props, "fast_axis", True)
         self.skip_bricks = boolean_property(props, "skip_bricks", True)
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
-        self.to_world = _scalar_transform(props.get("to_world", mi.ScalarTransform4f()))
-        spacing = props.get("spacing", None)
-        if spacing is not None:
-            spacing = [float(s) for s in str(spacing).replace(",", " ").split()]
+        self.to_world = transform_property(props, "to_world")
+        spacing = _parse_spacing(string_property(props, "spacing", "")) if "spacing" in props else None
         self.volume: Volume | None = None
         self._tex = None
-        filename = props.get("filename", None)
+        filename = string_property(props, "filename", "")
         if filename:
-            path = mi.file_resolver().resolve(str(filename))
+            path = mi.file_resolver().resolve(filename)
             self.set_volume(load_volume(str(path), spacing=spacing))
         elif spacing is not None:
             self._spacing_override = spacing
@@ -158,7 +159,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if spacing is not None:
             volume = Volume(volume.data, spacing, volume.origin, volume.metadata)
         if to_world is not None:
-            self.to_world = _scalar_transform(to_world)
+            self.to_world = scalar_transform(to_world, "to_world")
         filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
         self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
         self.volume = volume

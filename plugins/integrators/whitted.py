@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.plugins.bsdfs._common import boolean_property, integer_property, spectrum_property
+from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 
 __all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME", "PLUGIN_CLASS"]
 

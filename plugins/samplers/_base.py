@@ -25,10 +25,16 @@ Sub-classes implement ``_pattern(sample, pixel_key) -> (x, y)`` in [0, 1)^2 and
 
 from __future__ import annotations
 
+import numbers
+import warnings
+
 import drjit as dr
 import mitsuba as mi
 
-__all__ = ["PatternSampler", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG"]
+from pointillist.plugins.properties import integer_property
+
+__all__ = ["PatternSampler", "GridLayout", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG",
+           "MAX_GRID_ASPECT", "MAX_SAMPLE_COUNT"]
 
 #: Rounds of the Tiny Encryption Algorithm per hash: 4, Mitsuba's own default for
 #: ``sample_tea_32`` (Zafar, Olano, Curtis, "GPU random numbers via the tiny
@@ -39,6 +45,12 @@ TEA_ROUNDS = 4
 #: Cranley-Patterson shift); sample indices never reach it.
 PIXEL_OFFSET_TAG = 0xFFFFFFFF
 
+
+#: Largest sample count per pixel a pattern sampler accepts (lane = pixel * spp + sample is 32-bit).
+MAX_SAMPLE_COUNT = 1 << 24
+
+#: Seeds are any 64-bit integer (only the low 32 bits are used).
+_SEED_RANGE = (-(1 << 63), (1 << 64) - 1)
 
 #: Weyl-sequence step (2^32 / golden ratio) that spreads dimension indices over 32 bits.
 GOLDEN_GAMMA = 0x9E3779B9
@@ -85,11 +97,11 @@ class PatternSampler(mi.Sampler):
     """Base class: an image-plane pattern at dimension 0, hashed random numbers elsewhere."""
 
     def __init__(self, props: mi.Properties):
+        # Checked before Mitsuba's own reader sees them (it would wrap or coerce a bad value).
+        integer_property(props, "sample_count", 4, 1, MAX_SAMPLE_COUNT)
+        self._base_seed = integer_property(props, "seed", 0, *_SEED_RANGE)
         super().__init__(props)
         spp = int(self.sample_count())
-        if spp < 1:
-            raise ValueError(f"{type(self).__name__}: sample_count must be >= 1, got {spp}")
-        self._base_seed = int(props.get("seed", 0))
         self._configure(spp)
         self._reset_state()
 
@@ -128,9 +140,9 @@ class PatternSampler(mi.Sampler):
         dr.schedule(self.m_pixel_key, self.m_sample_key, self.m_sample, self.m_dim)
 
     def set_sample_count(self, spp: int) -> None:
+        if isinstance(spp, bool) or not isinstance(spp, numbers.Integral) or not 1 <= spp <= MAX_SAMPLE_COUNT:
+            raise ValueError(f"sample_count: expected an integer in 1..{MAX_SAMPLE_COUNT}, got {spp!r}")
         spp = int(spp)
-        if spp < 1:
-            raise ValueError(f"{type(self).__name__}: sample_count must be >= 1, got {spp}")
         super().set_sample_count(spp)
         self._configure(spp)
 
@@ -199,3 +211,41 @@ class PatternSampler(mi.Sampler):
 
     def to_string(self) -> str:
         return f"{type(self).__name__}[sample_count={self.sample_count()}, seed={self._base_seed}]"
+
+
+#: Largest cols / rows ratio accepted without a warning (2: e.g. 8 = 2 x 4, 32 = 4 x 8).
+MAX_GRID_ASPECT = 2.0
+
+
+class GridLayout(PatternSampler):
+    """Base of the grid samplers (``grid``, ``jitter``): ``rows x cols == sample_count`` cells,
+    laid out by :func:`grid_shape`; sub-classes place a sample inside its cell (``_pattern``)."""
+
+    def _configure(self, spp: int) -> None:
+        rows, cols = grid_shape(spp)
+        if cols / rows > MAX_GRID_ASPECT:
+            warnings.warn(
+                f"{self.PLUGIN_NAME} sampler: sample_count {spp} has no factorisation close to a "
+                f"square; using a {rows} x {cols} grid (choose a square or 2:1 count such as "
+                f"{_nearest_nice(spp)} for even strata)", RuntimeWarning, stacklevel=2)
+        self.rows, self.cols = rows, cols
+
+    def _cell(self, sample):
+        """Column and row of ``sample`` (row-major: sample = row * cols + col) as floats."""
+        cols = dr.opaque(mi.UInt32, self.cols)
+        row = sample // cols
+        col = sample - row * cols
+        return mi.Float(col), mi.Float(row)
+
+    def _cell_size(self):
+        return dr.opaque(mi.Float, 1.0 / self.cols), dr.opaque(mi.Float, 1.0 / self.rows)
+
+
+def _nearest_nice(spp: int) -> int:
+    """The nearest count whose grid is square or 1:2."""
+    best = None
+    for n in range(1, 2 * spp + 2):
+        rows, cols = grid_shape(n)
+        if cols / rows <= MAX_GRID_ASPECT and (best is None or abs(n - spp) < abs(best - spp)):
+            best = n
+    return best

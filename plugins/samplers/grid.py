@@ -2,53 +2,12 @@
 
 from __future__ import annotations
 
-import warnings
-
-import drjit as dr
-import mitsuba as mi
-
-from pointillist.plugins.samplers._base import PatternSampler, grid_shape
+from pointillist.plugins.samplers._base import MAX_GRID_ASPECT, GridLayout
 
 __all__ = ["GridSampler", "MAX_GRID_ASPECT"]
 
-#: Largest cols / rows ratio accepted without a warning (2: e.g. 8 = 2 x 4, 32 = 4 x 8).
-MAX_GRID_ASPECT = 2.0
 
-
-class _GridLayout(PatternSampler):
-    """Shared grid layout of ``grid`` and ``jitter``: ``rows x cols == sample_count``."""
-
-    def _configure(self, spp: int) -> None:
-        rows, cols = grid_shape(spp)
-        if cols / rows > MAX_GRID_ASPECT:
-            warnings.warn(
-                f"{self.PLUGIN_NAME} sampler: sample_count {spp} has no factorisation close to a "
-                f"square; using a {rows} x {cols} grid (choose a square or 2:1 count such as "
-                f"{_nearest_nice(spp)} for even strata)", RuntimeWarning, stacklevel=2)
-        self.rows, self.cols = rows, cols
-
-    def _cell(self, sample):
-        """Column and row of ``sample`` (row-major: sample = row * cols + col) as floats."""
-        cols = dr.opaque(mi.UInt32, self.cols)
-        row = sample // cols
-        col = sample - row * cols
-        return mi.Float(col), mi.Float(row)
-
-    def _cell_size(self):
-        return dr.opaque(mi.Float, 1.0 / self.cols), dr.opaque(mi.Float, 1.0 / self.rows)
-
-
-def _nearest_nice(spp: int) -> int:
-    """The nearest count whose grid is square or 1:2."""
-    best = None
-    for n in range(1, 2 * spp + 2):
-        rows, cols = grid_shape(n)
-        if cols / rows <= MAX_GRID_ASPECT and (best is None or abs(n - spp) < abs(best - spp)):
-            best = n
-    return best
-
-
-class GridSampler(_GridLayout):
+class GridSampler(GridLayout):
     r"""
     Regular grid sampler (:monosp:`grid`)
     -------------------------------------

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from pointillist.plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, unit_float
-from pointillist.plugins.samplers.grid import _GridLayout
+from pointillist.plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, GridLayout, unit_float
 
 __all__ = ["JitterSampler"]
 
@@ -15,7 +14,7 @@ __all__ = ["JitterSampler"]
 JITTER_TAG = PIXEL_OFFSET_TAG - 1
 
 
-class JitterSampler(_GridLayout):
+class JitterSampler(GridLayout):
     r"""
     Jittered (stratified) sampler (:monosp:`jitter`)
     ------------------------------------------------

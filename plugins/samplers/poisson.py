@@ -12,8 +12,8 @@ import numpy as np
 
 from pointillist.plugins.samplers._base import PIXEL_OFFSET_TAG, TEA_ROUNDS, PatternSampler, unit_float
 
-__all__ = ["PoissonSampler", "poisson_disk_points", "generate_poisson_disk_points", "SHIPPED_COUNTS", "toroidal_min_distance", "hexagonal_radius",
-           "BRIDSON_CANDIDATES", "START_RELATIVE_RADIUS", "RADIUS_STEP"]
+__all__ = ["PoissonSampler", "poisson_disk_points", "generate_poisson_disk_points", "SHIPPED_COUNTS",
+           "toroidal_min_distance", "hexagonal_radius", "BRIDSON_CANDIDATES", "START_RELATIVE_RADIUS", "RADIUS_STEP"]
 
 #: Candidates tried around an active point before it is retired: k = 30, the value
 #: of Bridson, "Fast Poisson disk sampling in arbitrary dimensions", SIGGRAPH 2007 sketch.

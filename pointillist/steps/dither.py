@@ -16,18 +16,6 @@ import numpy as np
 from pointillist.imaging import dither
 from pointillist.steps import step
 
-#: Methods and the keyword options each accepts (besides ``method``).
-METHODS: dict[str, tuple[str, ...]] = {
-    "threshold": ("level",),
-    "error_diffusion": ("level", "levels", "linear"),
-    **{name: ("level", "levels", "serpentine", "linear") for name in dither.KERNELS},
-    "ordered": ("n", "levels", "linear"),
-    "bayer": ("n", "levels", "linear"),
-    "blue_noise": ("levels", "linear"),
-    "pattern": ("n", "levels", "linear"),
-    "halftone": ("n",),
-}
-
 
 def _report(before: Any, after: Any) -> dict[str, float]:
     """The SPEC dither error; for halftone (n times larger) the average is per unit area."""
@@ -42,27 +30,7 @@ def _report(before: Any, after: Any) -> dict[str, float]:
 
 
 @step("dither", params=("method",), report=_report,
-      help="dither to 1 bit (or levels=N): " + ", ".join(METHODS)
-           + "; options level, levels, serpentine, n, linear")
+      help="dither to 1 bit (or levels=N): " + ", ".join(dither.DITHER_METHODS) + "; options "
+           + ", ".join(dict.fromkeys(o for m in dither.DITHER_METHODS for o in dither.dither_options(m))))
 def _dither(image, method: str = "floyd_steinberg", **options):
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"dither: method: expected one of {', '.join(METHODS)}, got {method!r}")
-    unknown = sorted(set(options) - set(METHODS[method]))
-    if unknown:
-        raise ValueError(f"dither: {method} takes the options {', '.join(METHODS[method]) or 'none'}, "
-                         f"got {', '.join(unknown)}")
-    if method == "threshold":
-        return dither.threshold(image, options.get("level", 128))
-    if method == "error_diffusion":
-        return dither.error_diffusion(image, **options)
-    if method in dither.KERNELS:
-        return dither.diffuse(image, method, **options)
-    if method == "halftone":
-        return dither.halftone(image, options.get("n", 3))
-    if method == "blue_noise":
-        return dither.blue_noise(image, **options)
-    n = options.pop("n", 4)
-    if method == "pattern":
-        template = dither.TEMPLATE_4 if n == 4 else dither.bayer(n)
-        return dither.pattern(image, template, **options)
-    return dither.ordered(image, dither.TEMPLATE_4 if n == 4 else dither.bayer(n), **options)
+    return dither.dither(image, method, **options)

@@ -1,0 +1,232 @@
+"""Array conventions and Dr.Jit helpers shared by every imaging operation (and the plugins).
+
+One place that turns what users pass (numpy arrays of any real dtype, Python
+sequences, Dr.Jit tensors of the LLVM backend with or without AD) into the
+``drjit.llvm.TensorXf`` the operations compute on, and checks the shape; plus the
+small Dr.Jit tools several modules need: :func:`opaque_scalar` (a cached opaque
+scalar) and :func:`divmod_u32` (integer division of UInt32 lanes without vector
+integer division).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable, TypeVar
+
+import drjit as dr
+import numpy as np
+from drjit.llvm import TensorXf
+
+__all__ = ["as_tensor", "to_numpy", "TensorXf", "eager_if_shared", "check_shape", "is_uint8", "opaque_scalar",
+           "divmod_u32"]
+
+
+def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | None = None,
+              allow_empty: bool = False) -> TensorXf:
+    """Return ``image`` as a float32 ``drjit.llvm.TensorXf`` of shape (H, W) or (H, W, C).
+
+    Parameters
+    ----------
+    image : array_like or Dr.Jit tensor
+        The image. numpy arrays are shared without a copy when already
+        C-contiguous float32; other dtypes are converted to float32
+        (integers keep their values: uint8 ``200`` becomes ``200.0``).
+    name : str
+        The argument's name, used in error messages.
+    channels : tuple of int, optional
+        Allowed channel counts C for 3-D input (2-D input is always allowed).
+    allow_empty : bool
+        Accept images with zero pixels.
+
+    Raises
+    ------
+    TypeError
+        If ``image`` is not array-like or has a non-numeric dtype.
+    ValueError
+        If ``image`` is not 2-D or 3-D, is empty, or has a disallowed channel count.
+    """
+    if isinstance(image, TensorXf):
+        tensor = image
+    elif dr.is_tensor_v(image):
+        if dr.backend_v(image) != dr.JitBackend.LLVM:
+            raise TypeError(f"{name}: expected a numpy array or an LLVM Dr.Jit tensor, got {type(image).__name__}")
+        tensor = TensorXf(dr.detach(image)) if dr.is_diff_v(image) else TensorXf(image)
+    else:
+        try:
+            array = np.asarray(image)
+        except Exception as error:  # noqa: BLE001 - anything numpy refuses
+            raise TypeError(f"{name}: expected an array-like image, got {type(image).__name__}") from error
+        if array.dtype == object or not (np.issubdtype(array.dtype, np.number) or array.dtype == np.bool_):
+            raise TypeError(f"{name}: expected a numeric array, got dtype {array.dtype}")
+        if np.iscomplexobj(array):
+            raise TypeError(f"{name}: expected a real-valued array, got dtype {array.dtype}")
+        check_shape(array.shape, name, channels, allow_empty)
+        tensor = TensorXf(np.ascontiguousarray(array, dtype=np.float32))
+        return tensor
+    check_shape(tuple(tensor.shape), name, channels, allow_empty)
+    return tensor
+
+
+def check_shape(shape: tuple[int, ...], name: str = "image", channels: tuple[int, ...] | None = None,
+                allow_empty: bool = False) -> None:
+    """Check that ``shape`` is an image shape (H, W) or (H, W, C), as :func:`as_tensor` does.
+
+    Raises
+    ------
+    ValueError
+        If it is not 2-D or 3-D, is empty (unless ``allow_empty``) or has a channel count
+        outside ``channels``.
+
+    Examples
+    --------
+    >>> from pointillist.imaging.arrays import check_shape
+    >>> check_shape((4, 5, 3), channels=(1, 3))
+    >>> check_shape((4,))
+    Traceback (most recent call last):
+    ...
+    ValueError: image: expected an image of shape (H, W) or (H, W, C), got shape (4,)
+    """
+    if len(shape) not in (2, 3):
+        raise ValueError(f"{name}: expected an image of shape (H, W) or (H, W, C), got shape {tuple(shape)}")
+    if not allow_empty and any(s == 0 for s in shape):
+        raise ValueError(f"{name}: expected a non-empty image, got shape {tuple(shape)}")
+    if len(shape) == 3 and channels is not None and shape[2] not in channels:
+        raise ValueError(f"{name}: expected {' or '.join(map(str, channels))} channels, got {shape[2]}")
+
+
+def to_numpy(image: Any) -> np.ndarray:
+    """Return ``image`` (numpy array or Dr.Jit tensor) as a numpy array (no copy where possible)."""
+    if dr.is_tensor_v(image):
+        return np.asarray(dr.detach(image) if dr.is_diff_v(image) else image)
+    return np.asarray(image)
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def eager_if_shared(function: _F) -> _F:
+    """Decorator for image operations: evaluate the result before returning when the image
+    argument is not a Dr.Jit array (or another argument is a numpy array).
+
+    :func:`as_tensor` shares a C-contiguous float32 numpy array's memory with Dr.Jit (no
+    copy), and Dr.Jit evaluates lazily: without this, a caller who changes its numpy array
+    after the call, before using the result, would change the result. Dr.Jit inputs stay
+    lazy, so chains of operations on Dr.Jit tensors still fuse into one kernel.
+    """
+
+    @functools.wraps(function)
+    def wrapper(image: Any, *args: Any, **kwargs: Any) -> Any:
+        result = function(image, *args, **kwargs)
+        if not dr.is_array_v(image) or any(isinstance(a, np.ndarray) for a in (*args, *kwargs.values())):
+            dr.eval(result)
+            dr.sync_thread()
+        return result
+
+    return wrapper  # type: ignore[return-value]
+
+
+def is_uint8(image: Any) -> bool:
+    """True for a numpy ``uint8`` array (read by the fast paths as packed bytes, without a float32 copy).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pointillist.imaging.arrays import is_uint8
+    >>> is_uint8(np.zeros((2, 2), np.uint8)), is_uint8(np.zeros((2, 2)))
+    (True, False)
+    """
+    return isinstance(image, np.ndarray) and image.dtype == np.uint8
+
+
+_OPAQUE: dict[tuple[type, Any], Any] = {}
+_OPAQUE_LIMIT = 512
+
+
+def opaque_scalar(kind: type, value: Any) -> Any:
+    """An opaque (evaluated) Dr.Jit scalar of type ``kind``, cached by ``(kind, value)``.
+
+    ``dr.opaque`` makes a kernel independent of the value (no recompilation per image size or
+    weight), but each call costs a one-element memset launch; a repeated call with the same
+    value reuses the evaluated variable instead (Dr.Jit variables are immutable, so sharing them
+    is safe). Floats are keyed by their bits, so ``-0.0`` and ``0.0`` stay distinct. The cache
+    holds at most 512 values (it is emptied when full).
+
+    Parameters
+    ----------
+    kind : type
+        A Dr.Jit array type (``drjit.llvm.Float``, ``UInt32``, ``mi.Float64``, ...).
+    value : int or float
+        The value.
+
+    Examples
+    --------
+    >>> from drjit.llvm import Float
+    >>> from pointillist.imaging.arrays import opaque_scalar
+    >>> opaque_scalar(Float, 0.5) is opaque_scalar(Float, 0.5)
+    True
+    >>> float(opaque_scalar(Float, 0.5)[0])
+    0.5
+    """
+    key = (kind, value.hex() if isinstance(value, float) else value)
+    variable = _OPAQUE.get(key)
+    if variable is None:
+        if len(_OPAQUE) >= _OPAQUE_LIMIT:
+            _OPAQUE.clear()
+        variable = _OPAQUE[key] = dr.opaque(kind, value)
+    return variable
+
+
+#: Bounds on the dividend of :func:`divmod_u32`: below 2^22 one float32 product is exact, below
+#: 2^24 one float32 product and a correction step are (see the error bounds there).
+FLOAT32_ROUNDED_BOUND = 1 << 22
+FLOAT32_EXACT_BOUND = 1 << 24
+
+
+def divmod_u32(a: Any, divisor: int, bound: int | None = None) -> tuple[Any, Any]:
+    """``a // divisor, a % divisor`` for UInt32 lanes ``a`` and a Python int ``divisor >= 1``,
+    without vector integer division.
+
+    LLVM has no SIMD integer division (it runs lane by lane). A power-of-two divisor is a shift
+    and a mask. Otherwise a multiplication by an opaque reciprocal (so the kernel does not depend
+    on the divisor), chosen by ``bound`` (``a < bound``, known to the caller):
+
+    - ``bound <= 2^22``: q = trunc((a + 1/2) fl(1/d)) in float32, no correction. The exact
+      (a + 1/2) / d lies at least 1/(2d) from an integer; two roundings (relative 2^-24 each)
+      move it by less than (a + 1/2) 2^-23 / d < 1/(2d), so the truncation is exact.
+    - ``bound <= 2^24``: float32 estimate and one correction step. a is exact in float32 and, for
+      divisor >= 2, the estimate of a / divisor < 2^23 is off by less than 2^23 * 2^-23 = 1.
+    - otherwise (any ``a < 2^32``): q = floor((a + 1/2) fl(1/d)) in float64, no correction: the
+      rounding error, below 2^-52 (a + 1/2) / d < 2^-20 / d, is smaller than the distance 1/(2d)
+      from (a + 1/2) / d to the nearest integer.
+
+    Dr.Jit emits plain IEEE operations here (no fast-math contraction), so the bounds hold; the
+    tests check them exhaustively near the limits. The Dr.Jit types follow ``a`` (plain or AD).
+
+    Examples
+    --------
+    >>> from drjit.llvm import UInt32
+    >>> from pointillist.imaging.arrays import divmod_u32
+    >>> q, r = divmod_u32(UInt32(0, 6, 7, 4000000000), 7)
+    >>> q.numpy().tolist(), r.numpy().tolist()
+    ([0, 0, 1, 571428571], [0, 6, 0, 3])
+    """
+    kind = type(a)
+    if divisor == 1:
+        return a, dr.zeros(kind, dr.width(a))
+    if divisor & (divisor - 1) == 0:
+        return a >> opaque_scalar(kind, divisor.bit_length() - 1), a & opaque_scalar(kind, divisor - 1)
+    d = opaque_scalar(kind, divisor)
+    if bound is not None and bound <= FLOAT32_EXACT_BOUND:
+        f32 = dr.float32_array_t(kind)
+        inverse = opaque_scalar(f32, float(np.float32(1.0) / np.float32(divisor)))
+        if bound <= FLOAT32_ROUNDED_BOUND:
+            q = kind((f32(a) + opaque_scalar(f32, 0.5)) * inverse)
+            return q, a - q * d
+        q = kind(f32(a) * inverse)
+        i32 = dr.int32_array_t(kind)
+        r = i32(a) - i32(q * d)
+        q = dr.select(r < 0, q - 1, dr.select(r >= i32(d), q + 1, q))
+        return q, a - q * d
+    f64 = dr.float64_array_t(kind)
+    q = kind(dr.floor((f64(a) + 0.5) * opaque_scalar(f64, 1.0 / divisor)))
+    return q, a - q * d

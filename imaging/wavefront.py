@@ -1,0 +1,267 @@
+"""Exact parallel error diffusion: the wavefront schedule behind :mod:`pointillist.imaging.dither`.
+
+Parallel error diffusion
+------------------------
+Error diffusion reads as a sequential scan, but with a raster scan pixel (y, x) depends only on
+pixels of the rows above up to column x + R (R = how far left the kernel reaches in the rows
+below) and on its left neighbours. Lanes of one SIMD packet each own a row of a band of P rows
+(P = the Dr.Jit packet width): lane i processes column t - s i at step t of ONE symbolic loop,
+where the skew s > R / dy makes every value a lane reads a value that another lane wrote in an
+earlier step (the wavefront over x + s y). Lanes keep a sliding window of the errors of the rows
+above in registers, so one step costs one gather of the input, one gather per source row of the
+error buffer, one scatter of the error and one scatter of the output. The error buffer is a
+small rolling buffer of P + 2 rows. Bands run one after another inside the same loop, so the whole
+image is a single kernel launch per call (one packet per colour channel, channels in parallel).
+The additions happen in exactly the order in which a sequential scan adds the contributions
+(rows further up first, each row in its scan order, then the pixel's own row), in float64, with
+no fused multiply-add, so the result is bit-identical to a sequential float64 reference.
+Serpentine scans reverse every other row, which makes row y wait for the end of row y - 1: those
+run as one sequential lane per channel (still one kernel).
+
+The formulas (kernels, quantiser, threshold rule) stay in :mod:`pointillist.imaging.dither`; this
+module only runs a given kernel over an image: :func:`diffuse_wavefront` takes the flat values,
+the kernel as ``(dy, dx, weight)`` triples and the quantiser's tables.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from functools import lru_cache
+from typing import Any
+
+import drjit as dr
+import numpy as np
+from drjit.llvm import Float, Float64, Int32
+
+__all__ = ["clip_intensity", "packet_width", "wavefront_schedule", "verified_lanes", "diffuse_wavefront"]
+
+#: The kernel :func:`verified_lanes` probes with (Floyd-Steinberg's weights: two rows, both directions).
+_PROBE_KERNEL = ((0, 1, 7 / 16), (1, -1, 3 / 16), (1, 0, 5 / 16), (1, 1, 1 / 16))
+
+
+def clip_intensity(values: Float) -> Float:
+    """NaN -> 0, then clip to 0..255 (so +inf -> 255 and -inf -> 0)."""
+    return dr.clip(dr.select(dr.isnan(values), 0.0, values), 0.0, 255.0)
+
+
+@lru_cache(maxsize=1)
+def packet_width() -> int:
+    """The SIMD packet width of Dr.Jit's LLVM backend on this CPU (16 AVX-512, 8 AVX, else 4).
+
+    Dr.Jit runs a kernel of at most one packet as one work unit, whose packets run in lockstep;
+    the lanes of one band must stay in one packet, so this must not overestimate the real width.
+    ``POINTILLIST_DITHER_LANES`` overrides it (a power of two <= the real width is always safe).
+    """
+    override = os.environ.get("POINTILLIST_DITHER_LANES")
+    if override:
+        value = int(override)
+        if value < 1 or value & (value - 1):
+            raise ValueError(f"POINTILLIST_DITHER_LANES: expected a power of two, got {override!r}")
+        return value
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as features
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as features  # type: ignore
+    if features.get("AVX512VL"):
+        return 16
+    if features.get("AVX"):
+        return 8
+    return 4
+
+
+def _distinct_sets(delta_bytes: int, lanes: int) -> int:
+    """How many L1 cache sets (64 sets of 64-byte lines, 4 KiB period) ``lanes`` addresses ``delta`` apart hit."""
+    return len({((k * delta_bytes) % 4096) // 64 for k in range(lanes)})
+
+
+def wavefront_schedule(kernel: tuple[tuple[int, int, float], ...], serpentine: bool, width: int, channels: int,
+              lanes: int) -> dict[str, Any]:
+    """Static plan of the wavefront: source windows, skew, arrival order, buffer layout."""
+    rows = sorted({dy for dy, _, _ in kernel if dy > 0})
+
+    def offset(dy: int, dx: int) -> int:
+        # Column of the source of (y, x), relative to x, in the scan coordinate of row y.
+        return dx if (serpentine and dy % 2) else -dx
+
+    right = {dy: max(offset(dy, dx) for ddy, dx, _ in kernel if ddy == dy) for dy in rows}
+    left = {dy: min(offset(dy, dx) for ddy, dx, _ in kernel if ddy == dy) for dy in rows}
+    for dy in rows:
+        right[dy] = max(right[dy], left[dy])
+    prefetch = max([0] + [right[dy] for dy in rows])
+    skew = max([1] + [right[dy] // dy + 1 for dy in rows])
+    if serpentine:
+        lanes = 1
+    if lanes > 1:
+        # Lanes of a band touch addresses (W - s) C floats apart: a multiple of 4 KiB maps them all
+        # onto one L1 set (conflict misses). A slightly larger skew spreads them; it stays exact.
+        want = min(lanes, 64) // 2
+        for candidate in range(skew, skew + 64):
+            if _distinct_sets((width - candidate) * channels * 4, lanes) >= want:
+                skew = candidate
+                break
+    # Arrival order of the contributions at a pixel: rows further up first, each row in the order
+    # it was scanned (rows of the other direction arrive right to left in our coordinate), then
+    # our own row, farthest first.
+    order = []
+    for dy in sorted(rows, reverse=True):
+        items = sorted(((offset(dy, dx), w) for ddy, dx, w in kernel if ddy == dy),
+                       key=lambda item: item[0], reverse=bool(serpentine and dy % 2))
+        order += [(dy, o, w) for o, w in items]
+    own = sorted(((dx, w) for dy, dx, w in kernel if dy == 0), reverse=True)
+    depth = max([0] + rows)
+    stride = width + 2 * prefetch + 2
+    if lanes > 1:
+        for pad in range(0, 16):
+            if _distinct_sets((stride + pad - skew) * 8, lanes) >= min(lanes, 64) // 2:
+                stride += pad
+                break
+    return dict(rows=rows, right=right, left=left, prefetch=prefetch, skew=skew, order=order, own=own,
+                lanes=lanes, slots=lanes + depth, stride=stride)
+
+
+@lru_cache(maxsize=1)
+def verified_lanes() -> int:
+    """:func:`packet_width`, verified once on this machine before it is trusted.
+
+    The parallel schedule is only exact when a band's lanes share one SIMD packet. The width is
+    read from CPU flags, not from Dr.Jit, so it is checked: a small random image is diffused with
+    the guessed width and with one lane (always exact); on disagreement the width is halved
+    until they agree, with a warning. Costs a few milliseconds once per process.
+    """
+    lanes = packet_width()
+    if lanes == 1 or os.environ.get("POINTILLIST_DITHER_LANES"):
+        return lanes
+    weights = _PROBE_KERNEL
+    height, width = 2 * lanes + 3, 29
+    rng = np.random.default_rng(20261122)
+    values = Float(rng.uniform(0.0, 255.0, height * width).astype(np.float32))
+    tables = (np.array([128.0]), np.array([0.0, 255.0]), np.array([0.0, 255.0]))  # 1 bit at 128
+    expected = diffuse_wavefront(values, height, width, 1, weights, False, tables, lanes=1).numpy()
+    guess = lanes
+    while lanes > 1 and not np.array_equal(
+            diffuse_wavefront(values, height, width, 1, weights, False, tables, lanes=lanes).numpy(), expected):
+        lanes //= 2
+    if lanes != guess:
+        warnings.warn(f"imaging.wavefront: Dr.Jit's SIMD packet is narrower than the {guess} lanes the CPU "
+                      f"flags suggest; using {lanes} (set POINTILLIST_DITHER_LANES to choose)", RuntimeWarning,
+                      stacklevel=2)
+    return lanes
+
+
+def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
+                  kernel: tuple[tuple[int, int, float], ...], serpentine: bool,
+                  tables: tuple[np.ndarray, np.ndarray, np.ndarray], carry: bool = False,
+                  lanes: int | None = None, clip: bool = False) -> Float:
+    """Error diffusion of the flat (H, W, C) ``values``; returns the output levels.
+
+    ``values``: evaluated float32 (already clipped, or raw with ``clip``: NaN -> 0 and the clip to
+    0..255 then happen on each value as the loop reads it, saving a pass over the image) or
+    uint8 (0..255, read as bytes). ``lanes``: rows processed together in one SIMD packet (default:
+    :func:`verified_lanes`).
+    """
+    plan = wavefront_schedule(kernel, serpentine, width, channels, verified_lanes() if lanes is None else lanes)
+    rows, right, left, order, own_w = plan["rows"], plan["right"], plan["left"], plan["order"], plan["own"]
+    lanes, skew, prefetch, slots, stride = plan["lanes"], plan["skew"], plan["prefetch"], plan["slots"], plan["stride"]
+    thresholds, work, display = tables
+    levels = len(display)
+
+    steps_per_band = width + prefetch + skew * (lanes - 1)
+    bands = -(-height // lanes)
+    total = bands * steps_per_band
+    if total >= 2**31 or height * width * channels >= 2**31:
+        raise ValueError(f"image: too large for error diffusion ({height} x {width} x {channels})")
+
+    # The error buffer: `slots` rows of `stride` float64 per channel. It is gathered and scattered
+    # in the same loop through two Dr.Jit arrays over the same memory: the schedule guarantees
+    # that every value is read at a later step than the one that wrote it.
+    memory = np.zeros(channels * slots * stride, dtype=np.float64)
+    errors_in, errors_out = Float64(memory), Float64(memory)
+    out = dr.empty(Float, height * width * channels)
+
+    lane = dr.arange(Int32, lanes * channels)
+    index = lane % lanes
+    channel = lane // lanes
+    W = dr.opaque(Int32, width)
+    H = dr.opaque(Int32, height)
+    C = dr.opaque(Int32, channels)
+    S = dr.opaque(Int32, slots)
+    B = dr.opaque(Int32, stride)
+    T = dr.opaque(Int32, steps_per_band)
+    end = dr.opaque(Int32, total)
+    buffer_base = channel * (S * B) + prefetch
+    if levels == 2:
+        level_k = dr.opaque(Float64, float(thresholds[0]))
+        work0, work1 = dr.opaque(Float64, float(work[0])), dr.opaque(Float64, float(work[1]))
+        disp0, disp1 = dr.opaque(Float, float(display[0])), dr.opaque(Float, float(display[1])),
+    else:
+        threshold_table = Float64(thresholds)
+        work_table = Float64(work)
+        display_table = Float(display.astype(np.float32))
+    search = [1 << b for b in reversed(range(max(1, (levels - 1).bit_length())))]
+
+    step = dr.zeros(Int32, lanes * channels)
+    t = dr.zeros(Int32, lanes * channels)
+    y = Int32(index)
+    slot = Int32(index)
+    windows = [[dr.zeros(Float64, lanes * channels) for _ in range(right[dy] - left[dy] + 1)] for dy in rows]
+    own = [dr.zeros(Float64, lanes * channels) for _ in range(max([0] + [dx for dx, _ in own_w]))]
+
+    def body(step, t, y, slot, windows, own):
+        x = t - (skew * index + prefetch)
+        start = t == 0
+        live = y < H
+        odd = (y & 1) == 1
+        for r, dy in enumerate(rows):
+            window = [dr.select(start, 0.0, v) for v in windows[r]][1:]
+            column = x + right[dy]
+            source = slot - dy
+            source = dr.select(source < 0, source + S, source)
+            mask = live & (y >= dy) & (column >= 0) & (column < W)
+            physical = dr.select(odd, W - 1 - column, column) if serpentine else column
+            window.append(dr.gather(Float64, errors_in, buffer_base + source * B + physical, mask))
+            windows[r] = window
+        valid = live & (x >= 0) & (x < W)
+        px = dr.select(odd, W - 1 - x, x) if serpentine else x
+        pixel = (y * W + px) * C + channel
+        read = Float(dr.gather(type(values), values, pixel, valid))
+        v = Float64(clip_intensity(read) if clip else read)
+        for dy, o, w in order:
+            v = v + windows[rows.index(dy)][o - left[dy]] * w
+        for dx, w in own_w:
+            v = v + own[dx - 1] * w
+        if levels == 2:
+            on = v >= level_k
+            q = dr.select(on, work1, work0)
+            shown = dr.select(on, disp1, disp0)
+        else:
+            k = dr.zeros(Int32, dr.width(v))
+            for jump in search:
+                candidate = k + jump
+                fits = candidate <= levels - 1
+                bound = dr.gather(Float64, threshold_table, candidate - 1, fits & valid)
+                k = dr.select(fits & (bound <= v), candidate, k)
+            q = dr.gather(Float64, work_table, k, valid)
+            shown = dr.gather(Float, display_table, k, valid)
+        e = dr.select(valid, v - q, 0.0)
+        if rows:
+            dr.scatter(errors_out, e, buffer_base + slot * B + px, valid)
+        dr.scatter(out, shown, pixel, valid)
+        if own:
+            own = [e] + own[:-1]
+        t = t + 1
+        wrap = t == T
+        if own and not carry:
+            own = [dr.select(wrap, 0.0, o) for o in own]
+        nxt = slot + lanes
+        nxt = dr.select(nxt >= S, nxt - S, nxt)
+        slot = dr.select(wrap, nxt, slot)
+        y = dr.select(wrap, y + lanes, y)
+        t = dr.select(wrap, 0, t)
+        return step + 1, t, y, slot, windows, own
+
+    dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
+                  labels=("step", "t", "y", "slot", "windows", "own"), mode="symbolic",
+                  label="error_diffusion")
+    dr.eval(out)
+    return out
