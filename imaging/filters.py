@@ -28,7 +28,7 @@ from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Wi
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
     "LAPLACIAN", "KERNELS", "BORDERS", "correlate", "normalize", "sobel", "prewitt",
-    "laplacian", "zero_crossings", "threshold", "median",
+    "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_MAX_SIZE",
 ]
 
 # --- Kernel constants (SPEC "Imaging definitions", cross-correlation) -------------------------
@@ -478,6 +478,11 @@ def _median_network(values: list[Float]) -> Float:
     return wires[n // 2]
 
 
+#: The largest window :func:`median` takes (9x9: 81 values through a Batcher network, about 2 s to
+#: compile the first time; the next calls take the kernel from the cache).
+MEDIAN_MAX_SIZE = 9
+
+
 def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     """Median filter: the ``size`` x ``size`` window sorted, the middle value replaces the centre (SPEC).
 
@@ -491,7 +496,11 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Channels are filtered independently.
     size : int
-        Odd window size (1 returns the image).
+        Odd window size (1 returns the image), at most :data:`MEDIAN_MAX_SIZE`: the network
+        grows as n log^2 n in the n = size^2 values and is compiled as one kernel (measured
+        on 32x32, first call: 7 -> 0.8 s, 9 -> 2.2 s, 15 -> 10 s, 31 -> 25 s, 63 never
+        finished), so larger windows are refused with a ValueError. A window larger than
+        the image is defined by the border mode (``"crop"`` refuses it: nothing is left).
     border : str
         As in :func:`correlate`; the default ``"clamp"`` matches ``cv2.medianBlur``
         (the course only defines border handling for correlation).
@@ -515,6 +524,9 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     10.0
     """
     size = _check_size(size)
+    if size > MEDIAN_MAX_SIZE:
+        raise ValueError(f"size: expected an odd window size up to {MEDIAN_MAX_SIZE} (the median's sorting network "
+                         f"is compiled for the whole window and grows as n log^2 n), got {size}")
     border = check_border(border)
     tensor = as_tensor(image)
     r = size // 2
