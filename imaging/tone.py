@@ -33,14 +33,14 @@ from __future__ import annotations
 
 import numbers
 import sys
-import warnings
 from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from pointillist.imaging.arrays import TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar
+from pointillist.imaging.arrays import (NonFiniteWarning, TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8,
+                                        opaque_scalar, replace_non_finite, warn_non_finite)
 from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, hsv_from_rgb_values, rgb_from_hsv_values,
                                         srgb_encode_values)
 
@@ -86,8 +86,6 @@ _TINY = float(np.finfo(np.float32).tiny)
 _HDR_MAX = 1e15
 
 
-class NonFiniteWarning(RuntimeWarning):
-    """NaN or infinite input values were replaced (NaN -> 0, +inf -> white, -inf -> 0)."""
 
 
 # --------------------------------------------------------------------------- argument checks
@@ -141,11 +139,7 @@ def _words(flat: np.ndarray) -> UInt32 | None:
 
 def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
     """NaN -> 0, +inf -> ``white``, -inf -> 0; also returns a counter of the replaced values."""
-    bad = ~dr.isfinite(values)
-    count = dr.zeros(UInt32, 1)
-    dr.scatter_add(count, 1, UInt32(0), active=bad)
-    clean = dr.select(bad, dr.select(values > 0, white, 0.0), values)
-    return clean, count
+    return replace_non_finite(values, white)
 
 
 def _done(result: TensorXf) -> TensorXf:
@@ -158,12 +152,7 @@ def _done(result: TensorXf) -> TensorXf:
 
 def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
     """Evaluate ``result`` together with the non-finite counter and warn with the count."""
-    dr.eval(result, count)
-    n = int(count[0])
-    if n:
-        warnings.warn(f"{where}: replaced {n} non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)",
-                      NonFiniteWarning, stacklevel=3)
-    return result
+    return warn_non_finite(result, count, where, stacklevel=4)
 
 
 def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float, where: str) -> TensorXf:
