@@ -19,7 +19,7 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float
+from drjit.llvm import Bool, Float, UInt32
 
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
@@ -198,8 +198,9 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
 
 
 @eager_if_shared
-def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
-    """Min-max normalise to 0..255 over the whole image (SPEC): ``(|I| - min) * 255 / (max - min)``.
+def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] = 0) -> TensorXf:
+    """Min-max normalise to 0..255 (SPEC): ``(|I| - min) * 255 / (max - min)``, min and max over the
+    computed pixels.
 
     Parameters
     ----------
@@ -208,6 +209,13 @@ def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     absolute : bool
         Make negative values positive first (absolute value), as the SPEC asks for
         correlation results (default True). With False the signed values are stretched.
+    ring : int or (int, int)
+        Width ``r`` or ``(ry, rx)`` of a border ring that was not computed: the ring a
+        window operation with ``border="zero"`` (or ``"keep"``) leaves, ``ry = kh // 2`` rows
+        and ``rx = kw // 2`` columns on each side (1 for the 3x3 kernels). The ring's
+        pixels do not count in min and max and are returned as they are, so
+        ``normalize(correlate(img, k), ring=1)`` equals ``correlate(img, k, normalize=True)``
+        (default 0: every pixel counts, as for any image).
 
     Returns
     -------
@@ -231,15 +239,40 @@ def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     >>> from pointillist.imaging.filters import normalize
     >>> np.asarray(normalize(np.array([[-2.0, 1.0], [3.0, 5.0]]))).tolist()
     [[63.75, 0.0], [127.5, 255.0]]
+    >>> img = np.zeros((5, 5)); img[2, 2] = 1.0      # the course's 5x5 example, Gaussian then normalise
+    >>> np.asarray(normalize(correlate(img, GAUSSIAN_3), ring=1))[1:4, 1:4].tolist()
+    [[0.0, 63.75, 0.0], [63.75, 255.0, 63.75], [0.0, 63.75, 0.0]]
     """
     if not isinstance(absolute, (bool, np.bool_)):
         raise TypeError(f"absolute: expected a bool, got {type(absolute).__name__}")
+    ry, rx = _check_ring(ring)
     tensor = as_tensor(image)
     values = dr.abs(tensor.array) if absolute else tensor.array
     dr.eval(values)
-    out = _rescale(values, finite_extrema(values), None, None)
-    out = dr.select(values == -math.inf, 0.0, out)
+    inside = None
+    if ry or rx:
+        H, W = tensor.shape[0], tensor.shape[1]
+        C = tensor.shape[2] if tensor.ndim == 3 else 1
+        pixel = dr.arange(UInt32, H * W * C) // C
+        y, x = pixel // W, pixel % W
+        inside = (y >= ry) & (y + ry < H) & (x >= rx) & (x + rx < W)
+        counted = dr.select(inside, values, math.nan)   # NaN is left out of min/max
+        dr.eval(counted)
+        bounds = finite_extrema(counted)
+    else:
+        bounds = finite_extrema(values)
+    out = _rescale(values, bounds, inside, tensor.array if inside is not None else None)
+    out = dr.select(values == -math.inf, 0.0, out) if inside is None else \
+        dr.select(inside & (values == -math.inf), 0.0, out)
     return TensorXf(out, tensor.shape)
+
+
+def _check_ring(ring: Any) -> tuple[int, int]:
+    values = ring if isinstance(ring, (tuple, list)) else (ring, ring)
+    if len(values) != 2 or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))
+                               or v < 0 for v in values):
+        raise ValueError(f"ring: expected a width >= 0 or (rows, columns), got {ring!r}")
+    return int(values[0]), int(values[1])
 
 
 def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, components: bool):

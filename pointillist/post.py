@@ -92,7 +92,9 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     what :func:`pointillist.steps.parse_steps` returns. ``linear``: the image is linear
     light (an EXR render); a display step then gets ``tonemap:clip`` first (said in
     ``notes``). The result stays lazy (a Dr.Jit tensor) unless ``report`` asks for
-    statistics, so a chain of steps fuses where Dr.Jit can fuse it.
+    statistics, so a chain of steps fuses where Dr.Jit can fuse it. ``normalize`` after a
+    window step with the zero (or keep) border leaves that step's uncomputed ring out, as
+    ``correlate:...,normalize=true`` does (``normalize:ring=N`` overrides).
 
     Examples
     --------
@@ -112,7 +114,10 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     reports: list[tuple[str, str, dict[str, float]]] = []
     done: list[str] = []
     notes: list[str] = []
+    ring = 0  # the border ring the last window step left uncomputed (zero border), for normalize
     for spec, kwargs in pipeline:
+        if spec.name == "normalize" and "ring" not in kwargs and ring:
+            kwargs = dict(kwargs, ring=ring)
         if linear and not spec.linear:
             current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
             linear = False
@@ -123,6 +128,7 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
                              "but the image is already display-referred")
         previous = current
         current = _run_step(spec, current, kwargs, notes)
+        ring = spec.ring(kwargs) if spec.ring is not None else ring
         linear = False if spec.linear else linear
         done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
         if report:

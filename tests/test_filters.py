@@ -294,3 +294,29 @@ def test_post_steps_registered_and_run(tmp_path, cli):
     assert result.returncode == 0, result.stderr
     bad = cli("post", source, "-o", tmp_path / "bad.png", "--steps", "correlate:sobel_z")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_normalize_leaves_the_uncomputed_ring_out():
+    """Issue 17: ``normalize`` alone counted the zero border ring, so ``normalize(correlate(...))``
+    differed from ``correlate(..., normalize=True)`` (193..255 against 0..255 on a positive image);
+    with ``ring`` the two agree, and ``post`` passes the ring of the window step before."""
+    from pointillist.post import apply_steps
+
+    img = (np.random.default_rng(17).random((5, 5)) * 200 + 50).astype(np.float32)  # positive: ring 0 = the min
+    for kernel, border in (("gaussian", "zero"), ("sobel_x", "zero"), ("laplacian", "keep")):
+        fused = out(F.correlate(img, kernel, border=border, normalize=True))
+        apart = out(F.normalize(F.correlate(img, kernel, border=border), ring=1))
+        np.testing.assert_array_equal(apart, fused)
+        assert fused[1:4, 1:4].min() == 0 and fused[1:4, 1:4].max() == 255
+    gauss = out(F.correlate(img, F.GAUSSIAN_3))
+    inner = np.abs(gauss[1:4, 1:4])
+    expected = (inner - inner.min()) * 255 / (inner.max() - inner.min())
+    np.testing.assert_allclose(out(F.normalize(gauss, ring=1))[1:4, 1:4], expected, rtol=1e-6)
+    assert out(F.normalize(gauss))[1:4, 1:4].min() > 150      # the whole image: the ring's 0 is the min
+    steps = apply_steps(img, "correlate:gaussian;normalize")
+    np.testing.assert_array_equal(out(steps.image), out(F.correlate(img, "gaussian", normalize=True)))
+    assert steps.done == ["correlate:kernel=gaussian", "normalize:ring=1"]
+    assert out(apply_steps(img, "correlate:gaussian,border=reflect;normalize").image).min() == 0
+    for bad in (-1, (1,), 1.5, True):
+        with pytest.raises(ValueError, match="ring"):
+            F.normalize(img, ring=bad)
