@@ -54,6 +54,7 @@ __all__ = [
     "equalize_histogram",
     "histogram",
     "quantize",
+    "QUANTIZE_MODES",
     "lut",
     "tonemap",
     "dynamic_range",
@@ -293,10 +294,16 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
 
 @eager_if_shared
-def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
+def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "nearest") -> TensorXf:
     """Quantise to ``levels`` evenly spaced grey levels spanning 0..max_value.
 
-    k = min(floor(I * levels / max_value), levels - 1), out = k * max_value / (levels - 1).
+    The levels are ``k * max_value / (levels - 1)``, k = 0..levels-1. Two ways to pick one:
+
+    - ``mode="nearest"`` (default, the course's): the level nearest to I,
+      ``k = floor(I * (levels - 1) / max_value + 0.5)`` (a tie goes up);
+    - ``mode="bins"``: 0..max_value cut into ``levels`` equal-width bins, bin k giving level k,
+      ``k = min(floor(I * levels / max_value), levels - 1)`` (at 4 levels on 0..255, 42 of the
+      256 inputs get another level than the nearest one, up to 63 away instead of 42).
 
     Parameters
     ----------
@@ -306,6 +313,8 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
         Number of output levels, 2..2^24 (256 on 0..255 integers is the identity).
     max_value : float
         > 0, the intensity of white.
+    mode : {"nearest", "bins"}
+        How a value picks its level (above).
 
     Returns
     -------
@@ -316,31 +325,45 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
     Raises
     ------
     ValueError
-        If ``levels`` < 2.
+        If ``levels`` < 2 or ``mode`` is unknown.
 
     Notes
     -----
-    levels = 2 is a threshold at max_value / 2. A constant image stays one
+    levels = 2 is a threshold at max_value / 2 in both modes. A constant image stays one
     level. NaN -> 0, +inf -> white with a :class:`NonFiniteWarning`.
 
     Examples
     --------
     >>> import numpy as np
     >>> from pointillist.imaging.tone import quantize
-    >>> np.asarray(quantize(np.array([[0, 63, 64, 200, 255]]), 4)).tolist()
-    [[0.0, 0.0, 85.0, 255.0, 255.0]]
+    >>> np.asarray(quantize(np.array([[0, 42, 43, 127, 128, 255]]), 4)).tolist()
+    [[0.0, 0.0, 85.0, 85.0, 170.0, 255.0]]
+    >>> np.asarray(quantize(np.array([[0, 42, 43, 127, 128, 255]]), 4, mode="bins")).tolist()
+    [[0.0, 0.0, 0.0, 85.0, 170.0, 255.0]]
     """
     levels = _levels(levels)
     max_value = _positive(max_value, "max_value")
-    n, top = opaque_scalar(Float, levels), opaque_scalar(Float, max_value)
+    if mode not in QUANTIZE_MODES:
+        raise ValueError(f"mode: expected one of {', '.join(map(repr, QUANTIZE_MODES))}, got {mode!r}")
+    top = opaque_scalar(Float, max_value)
     step = opaque_scalar(Float, max_value / (levels - 1))
     last = opaque_scalar(Float, levels - 1)
+    if mode == "bins":
+        n = opaque_scalar(Float, levels)
 
-    def curve(x: Float) -> Float:
-        k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
-        return k * step
+        def curve(x: Float) -> Float:
+            k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
+            return k * step
+    else:
+        def curve(x: Float) -> Float:
+            k = dr.floor(dr.minimum(dr.maximum(x, 0.0), top) * last / top + 0.5)
+            return k * step
 
     return _pointwise(image, curve, max_value, "quantize")
+
+
+#: The two rules of :func:`quantize`: the nearest level (the course's, default) or equal-width bins.
+QUANTIZE_MODES = ("nearest", "bins")
 
 
 def _table(table: Any, channels: int) -> tuple[Float, int]:

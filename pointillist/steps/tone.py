@@ -38,9 +38,11 @@ def _equalize(image, levels=256):
     return tone.equalize_histogram(image, levels)
 
 
-@step("quantize", params=("levels",), help="quantise to N evenly spaced grey levels")
-def _quantize(image, levels):
-    return tone.quantize(image, levels)
+@step("quantize", params=("levels", "mode"),
+      help="quantise to N evenly spaced grey levels: mode nearest (the nearest level, default) or bins "
+           "(N equal-width bins)")
+def _quantize(image, levels, mode="nearest"):
+    return tone.quantize(image, levels, mode=mode)
 
 
 @step("hsv", params=("hue", "saturation", "value"),
