@@ -16,8 +16,11 @@ Downscaling does not low-pass filter first (like OpenCV's INTER_LINEAR and
 INTER_CUBIC; it aliases).
 
 - nearest: the pixel whose centre is nearest (ties go to the right/lower pixel):
-  ``floor(src + 0.5)``; for resize this is ``floor((dst + 0.5) * scale)``,
-  OpenCV's ``INTER_NEAREST_EXACT``.
+  ``floor(src + 0.5)``; for resize this is ``floor((dst + 0.5) * scale)``, computed
+  exactly in integers. It is the formula of OpenCV's ``INTER_NEAREST_EXACT``, but OpenCV
+  evaluates it in fixed point and picks the other pixel at some exact ties: 201 of the
+  1521 (input, output) width pairs in 1..39 differ (14 -> 5 pixels: output 2 sits at
+  source 7.0 exactly; this takes pixel 7).
 - bilinear: ``v = v1 + (v2 - v1)(x - x1)/(x2 - x1)`` in x, then the same in y.
 - bicubic: Keys' cubic convolution kernel (R. Keys, "Cubic convolution
   interpolation for digital image processing", IEEE TASSP 29(6), 1981) with
