@@ -426,7 +426,10 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
     The reference is ``reference`` (an EXR of the render's size) or a render of
     :data:`REFERENCE_SAMPLER` at ``reference_spp``, kept in ``out_dir/reference``.
     Everything that can be checked (scene, sample counts, reference size) is checked
-    before the first render. ``log`` receives progress lines (e.g. ``print``).
+    before the first render. ``notes`` of the result (also given to ``log`` and listed in
+    results.md) say which reconstruction filter the film uses (only a box filter makes a
+    pixel the plain average of its samples), when the reference took another spp than asked
+    and when FLIP could not be computed. ``log`` receives progress lines (e.g. ``print``).
 
     Raises
     ------
@@ -435,7 +438,7 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         count Mitsuba cannot take, or a reference of the wrong size.
     """
     from pointillist.compare_report import write_report
-    from pointillist.scene import check_sample_count, check_scene_file
+    from pointillist.scene import check_sample_count, check_scene_file, filter_note
 
     params = dict(params or {})
     tasks = sweep_tasks(methods, spp, seeds)
@@ -445,7 +448,7 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         raise UsageError(f"--out: {out} exists and is not a folder")
     if reference is not None and not Path(reference).is_file():
         raise UsageError(f"--reference: no such file: {reference}")
-    size = _scene_size(scene, params)
+    size, rfilter = _scene_size(scene, params)
     for count in [t.value for t in tasks if sweep_parameter(t.method) == "spp"] + (
             [] if reference else [reference_spp]):
         check_sample_count(*size, int(count))  # before any render starts (and its progress bar)
@@ -455,7 +458,8 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise UsageError(f"--out: cannot create the folder {out} ({error.strerror or error})") from None
-    notes: list[str] = []
+    notes: list[str] = [filter_note(rfilter)]
+    log(notes[0])
     cluster_renders = 0
     if workers or scheduler:
         with open_client(workers, scheduler) as client:
@@ -494,15 +498,16 @@ def _reference_spp(reference: Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
-def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
-    """``(width, height)`` the scene renders (loads it once: bad scenes fail before any render)."""
+def _scene_size(scene: Path, params: dict) -> tuple[tuple[int, int], str]:
+    """``((width, height), film filter)`` of the scene (loads it once: bad scenes fail before any render)."""
     import pointillist
 
     pointillist.setup()
-    from pointillist.scene import load_scene, scene_info
+    from pointillist.scene import film_filter, load_scene, scene_info
 
-    info = scene_info(load_scene(scene, params))
-    return info["width"], info["height"]
+    loaded = load_scene(scene, params)
+    info = scene_info(loaded)
+    return (info["width"], info["height"]), film_filter(loaded)
 
 
 def _check_reference(reference: Path, size: tuple[int, int]) -> None:

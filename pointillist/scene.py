@@ -11,7 +11,8 @@ from typing import Any
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "load_scene", "check_scene_file", "check_sensor", "mitsuba_message", "MAX_MESSAGE",
-           "RenderTiming", "timed_render", "scene_info", "check_sample_count", "MAX_SAMPLES"]
+           "RenderTiming", "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count",
+           "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -200,6 +201,20 @@ def scene_info(scene, sensor: int = 0) -> dict[str, Any]:
         "width": int(film.crop_size()[0]),
         "height": int(film.crop_size()[1]),
     }
+
+
+def film_filter(scene, sensor: int = 0) -> str:
+    """The film's reconstruction filter as Mitsuba prints it (``BoxFilter[]``,
+    ``GaussianFilter[stddev=0.50, radius=2.00]`` ...)."""
+    return str(scene.sensors()[sensor].film().rfilter()).splitlines()[0].strip()
+
+
+def filter_note(description: str) -> str:
+    """One line saying whether a film filter makes a pixel the plain average of its samples."""
+    if description.startswith("BoxFilter"):
+        return f"film filter: {description} (box: each pixel is the plain average of its samples)"
+    return (f"film filter: {description}: a pixel is a weighted sum of nearby samples, not the plain "
+            "average of its own (the course's super-sampling needs <rfilter type=\"box\"/> in the film)")
 
 
 def _plugin_id(obj) -> str:

@@ -437,6 +437,11 @@ def test_hostile_flip_notes(hostile):
         with open(folders[name] / "c" / "results.csv") as handle:
             rows = list(csv.DictReader(handle))
         assert rows and all(row["flip"] == "nan" for row in rows)
+    # and which film filter the scene uses (only a box filter is the course's plain average)
+    assert "film filter: GaussianFilter[stddev=0.50, radius=2.00]: a pixel is a weighted sum" in \
+        results["compare-black-scene"]["stdout"]
+    assert "film filter: BoxFilter[] (box: each pixel is the plain average of its samples)" in \
+        (folders["compare-zero-reference"] / "c" / "results.md").read_text()
 
 
 def test_hostile_mip_uniform_spacing(hostile):
