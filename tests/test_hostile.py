@@ -130,6 +130,12 @@ CASES: list[tuple[str, list[str], str]] = [
     ("post-resize-method", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "resize:4,4,lanczos"], ERROR),
     ("post-median-even", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "median:4"], ERROR),
     ("post-median-zero", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "median:0"], ERROR),
+    ("post-median-31", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "median:31"], ERROR),  # hung 25 s
+    ("post-median-63", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "median:63"], ERROR),  # never ended
+    ("post-median-larger-than-image", ["post", "{d}/one.png", "-o", "{o}/x.png", "--steps", "median:9,wrap"], OK),
+    ("post-quantize-mode", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "quantize:4,round"], ERROR),
+    ("post-normalize-ring", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "sobel;normalize:ring=-1"],
+     ERROR),
     ("post-quantize-one", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "quantize:1"], ERROR),
     ("post-quantize-huge", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "quantize:1000000000"], ERROR),
     ("post-threshold-nan", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "threshold:nan"], ERROR),
@@ -594,3 +600,19 @@ def test_normalised_volume_is_exact_and_leaves_plain_volumes():
     scale = tiny.spacing[0] / 1e-10
     assert scale == 2.0 ** round(np.log2(scale))  # a power of two: exact
     assert tiny.spacing == (1e-10 * scale, 1e-10 * scale, 3e-10 * scale)
+
+
+def test_median_window_bound_and_windows_larger_than_the_image():
+    """Defect 4: a 31x31 median took 25 s, 63x63 never finished: above MEDIAN_MAX_SIZE a ValueError
+    names the bound; a window larger than the image is defined by the border (scipy agrees)."""
+    from scipy import ndimage
+
+    from pointillist.imaging.filters import MEDIAN_MAX_SIZE, median
+
+    img = np.random.default_rng(4).random((3, 4)).astype(np.float32)
+    for size in (MEDIAN_MAX_SIZE + 2, 31, 63, 1001):
+        with pytest.raises(ValueError, match=f"size: expected an odd window size up to {MEDIAN_MAX_SIZE}"):
+            median(img, size)
+    for border, mode in (("wrap", "wrap"), ("reflect", "reflect"), ("clamp", "nearest")):
+        np.testing.assert_array_equal(np.asarray(median(img, 7, border=border)),
+                                      ndimage.median_filter(img, size=7, mode=mode), err_msg=border)
