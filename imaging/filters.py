@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import drjit as dr
@@ -24,11 +25,12 @@ from drjit.llvm import Bool, Float, UInt32
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
                                                select_max, select_min, window_apply, window_result)
+from pointillist.imaging.rank import radix_median
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
     "LAPLACIAN", "KERNELS", "BORDERS", "correlate", "normalize", "sobel", "prewitt",
-    "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_MAX_SIZE",
+    "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_NETWORK_MAX_SIZE", "MEDIAN_MAX_LOADS",
 ]
 
 # --- Kernel constants (SPEC "Imaging definitions", cross-correlation) -------------------------
@@ -511,9 +513,13 @@ def _median_network(values: list[Float]) -> Float:
     return wires[n // 2]
 
 
-#: The largest window :func:`median` takes (9x9: 81 values through a Batcher network, about 2 s to
-#: compile the first time; the next calls take the kernel from the cache).
-MEDIAN_MAX_SIZE = 9
+#: The largest window :func:`median` sorts with a network (9x9: 81 values through a Batcher network,
+#: about 2 s to compile the first time); larger windows use radix selection.
+MEDIAN_NETWORK_MAX_SIZE = 9
+
+#: The most key loads one radix-selection median may take (32 x window values x image values for
+#: float data): about half a minute here. Larger requests are refused.
+MEDIAN_MAX_LOADS = 2**34
 
 
 def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
@@ -529,11 +535,14 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Channels are filtered independently.
     size : int
-        Odd window size (1 returns the image), at most :data:`MEDIAN_MAX_SIZE`: the network
-        grows as n log^2 n in the n = size^2 values and is compiled as one kernel (measured
-        on 32x32, first call: 7 -> 0.8 s, 9 -> 2.2 s, 15 -> 10 s, 31 -> 25 s, 63 never
-        finished), so larger windows are refused with a ValueError. A window larger than
-        the image is defined by the border mode (``"crop"`` refuses it: nothing is left).
+        Odd window size (1 returns the image). Up to :data:`MEDIAN_NETWORK_MAX_SIZE` (9) the
+        sorting network below; above, radix selection (:mod:`pointillist.imaging.rank`):
+        the network grows as n log^2 n in the n = size^2 values and is compiled as one
+        kernel (measured on 32x32, first call: 9 -> 2.2 s, 15 -> 10 s, 31 -> 25 s, 63 never
+        finished), the selection's kernel does not grow (8 or 32 loads per window value:
+        256x256 8-bit at 63x63 in 3.7 s, float at 31x31 in 3.6 s, here). A call needing more
+        than :data:`MEDIAN_MAX_LOADS` loads is refused with a ValueError. A window larger
+        than the image is defined by the border mode (``"crop"`` refuses it: nothing is left).
     border : str
         As in :func:`correlate`; the default ``"clamp"`` matches ``cv2.medianBlur``
         (the course only defines border handling for correlation).
@@ -557,12 +566,19 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     10.0
     """
     size = _check_size(size)
-    if size > MEDIAN_MAX_SIZE:
-        raise ValueError(f"size: expected an odd window size up to {MEDIAN_MAX_SIZE} (the median's sorting network "
-                         f"is compiled for the whole window and grows as n log^2 n), got {size}")
     border = check_border(border)
     tensor = as_tensor(image)
     r = size // 2
+    if size > MEDIAN_NETWORK_MAX_SIZE:
+        loads = 32 * size * size * int(np.prod(tensor.shape))
+        if loads > MEDIAN_MAX_LOADS:
+            raise ValueError(f"size: a {size}x{size} median of a {'x'.join(map(str, tensor.shape))} image needs up to "
+                             f"{loads:.3g} loads, more than {MEDIAN_MAX_LOADS:.3g} (MEDIAN_MAX_LOADS, about half a "
+                             "minute); use a smaller window")
+        values, _ = radix_median(tensor, size, border)
+        shape = tuple(tensor.shape)
+        frame = SimpleNamespace(shape=shape, H=shape[0], W=shape[1], ry=r, rx=r)  # what window_result reads
+        return window_result(values, frame, border)
     if r == 0:   # the identity, as a copy: numpy input shares the caller's memory
         values = Float(tensor.array) if dr.is_array_v(image) else Float(np.array(tensor.array, dtype=np.float32))
         return window_result(values, Window(tensor, 0, 0), border)
