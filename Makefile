@@ -10,13 +10,13 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 STAMP := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: demo test setup system venv clean
+.PHONY: demo test setup system system-test venv clean
 
 demo: setup
 	@mkdir -p out
 	$(VENV)/bin/pointillist render scenes/default.xml -o out/default.exr --png
 
-test: setup
+test: setup system-test
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 setup: system $(STAMP)
@@ -31,6 +31,15 @@ system:
 	if [ -n "$$need" ]; then \
 		echo "installing system packages:$$need"; \
 		$(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$need >/dev/null; \
+	fi
+
+# System packages only the tests need: Chromium, which opens compare's report.html headless
+# (tests/test_compare_html.py). Not part of `setup`: `make demo` installs no browser.
+system-test:
+	@if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1; then \
+		echo "installing system packages: chromium (browser test of compare's report.html)"; \
+		( $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium >/dev/null ) \
+		|| echo "could not install chromium: tests/test_compare_html.py will skip its browser checks" >&2; \
 	fi
 
 $(STAMP): pyproject.toml

@@ -346,18 +346,17 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
     if mode not in QUANTIZE_MODES:
         raise ValueError(f"mode: expected one of {', '.join(map(repr, QUANTIZE_MODES))}, got {mode!r}")
     top = opaque_scalar(Float, max_value)
-    step = opaque_scalar(Float, max_value / (levels - 1))
     last = opaque_scalar(Float, levels - 1)
     if mode == "bins":
         n = opaque_scalar(Float, levels)
 
         def curve(x: Float) -> Float:
             k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
-            return k * step
+            return k * top / last  # not k * step: the top level must be max_value exactly (21 * (255 / 21) > 255)
     else:
         def curve(x: Float) -> Float:
             k = dr.floor(dr.minimum(dr.maximum(x, 0.0), top) * last / top + 0.5)
-            return k * step
+            return k * top / last
 
     return _pointwise(image, curve, max_value, "quantize")
 

@@ -41,9 +41,12 @@ from typing import Any
 
 import numpy as np
 
+from pointillist.imaging.orientation import LPS_FROM_RAS, axis_codes, check_affine, snap_directions
+
 __all__ = [
     "Volume", "load_volume", "read_vol", "write_vol", "read_npy", "read_nrrd", "read_nifti",
-    "read_dicom_series", "shepp_logan_phantom", "volume_texture", "VolumeTexture", "SHEPP_LOGAN_HU",
+    "read_dicom_series", "OrientationWarning", "shepp_logan_phantom", "volume_texture", "VolumeTexture",
+    "SHEPP_LOGAN_HU",
 ]
 
 #: Voxels per slab when the phantom is evaluated (bounds its temporary memory).
@@ -55,24 +58,33 @@ _HALF_EXACT = 2048
 
 @dataclass
 class Volume:
-    """A scalar volume: ``data[z, y, x]`` with voxel spacing ``(sx, sy, sz)``.
+    """A scalar volume: ``data[z, y, x]`` with voxel spacing ``(sx, sy, sz)`` and its place in the patient.
 
     Attributes
     ----------
     data : numpy.ndarray
         3-D array (Z, Y, X), any real dtype.
     spacing : tuple of float
-        Voxel size along x, y, z (physical units, > 0).
+        Voxel size along x, y, z (physical units, > 0); the column norms of ``affine``.
     origin : tuple of float
-        Position of the centre of voxel (0, 0, 0) in the file's space (metadata only).
+        Position of the centre of voxel (0, 0, 0) in patient LPS (``affine[:3, 3]``).
     metadata : dict
-        What the format said (e.g. DICOM modality, NIfTI affine).
+        What the format said (e.g. DICOM modality, the file's own NIfTI affine).
+    affine : numpy.ndarray, optional
+        4x4 voxel-to-patient transform: voxel index ``(i, j, k, 1)`` (i along x, the
+        fastest axis of ``data``) to LPS millimetres (see :mod:`pointillist.imaging.orientation`).
+        When given, ``spacing`` and ``origin`` are taken from it; sheared transforms are refused.
+        Default: ``diag(spacing)`` + ``origin``: voxel x, y, z taken as L, P, S (no orientation).
+    oriented : bool, optional
+        Whether the file gave a patient orientation (default: whether ``affine`` was given).
     """
 
     data: np.ndarray
     spacing: tuple[float, float, float] = (1.0, 1.0, 1.0)
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     metadata: dict[str, Any] = field(default_factory=dict)
+    affine: np.ndarray | None = None
+    oriented: bool | None = None
 
     def __post_init__(self) -> None:
         data = self.data
@@ -87,8 +99,18 @@ class Volume:
         if not np.issubdtype(data.dtype, np.number) or np.iscomplexobj(data):
             raise TypeError(f"data: expected a real numeric array, got dtype {data.dtype}")
         self.data = data
-        self.spacing = _check_spacing(self.spacing)
-        self.origin = tuple(float(o) for o in self.origin)  # type: ignore[assignment]
+        if self.oriented is None:
+            self.oriented = self.affine is not None
+        if self.affine is None:
+            self.spacing = _check_spacing(self.spacing)
+            self.origin = tuple(float(o) for o in self.origin)  # type: ignore[assignment]
+            affine = np.diag([*self.spacing, 1.0])
+            affine[:3, 3] = self.origin
+            self.affine = affine
+        else:
+            self.affine, spacing, _ = check_affine(self.affine)
+            self.spacing = _check_spacing(spacing)
+            self.origin = tuple(float(o) for o in self.affine[:3, 3])  # type: ignore[assignment]
 
     @property
     def shape_xyz(self) -> tuple[int, int, int]:
@@ -100,6 +122,26 @@ class Volume:
     def extent(self) -> tuple[float, float, float]:
         """Physical size of the volume's box along x, y, z (counts x spacing)."""
         return tuple(n * s for n, s in zip(self.shape_xyz, self.spacing))  # type: ignore[return-value]
+
+    @property
+    def directions(self) -> np.ndarray:
+        """Unit direction cosines (3x3, columns = voxel axes x, y, z in LPS), round-off snapped.
+
+        Entries within 1e-6 of 0 or +-1 are exact (:func:`~pointillist.imaging.orientation.snap_directions`).
+        """
+        return snap_directions(self.affine[:3, :3] / np.asarray(self.spacing))
+
+    @property
+    def axis_codes(self) -> str:
+        """Where voxel axes x, y, z point, e.g. ``"LPS"`` (DICOM axial) or ``"RAS"`` (see :func:`axis_codes`)."""
+        return axis_codes(self.directions)
+
+    def respaced(self, spacing: Any) -> "Volume":
+        """The same volume with voxel spacing ``spacing`` (directions and origin kept)."""
+        spacing = _check_spacing(spacing)
+        affine = self.affine.copy()
+        affine[:3, :3] = self.affine[:3, :3] / np.asarray(self.spacing) * np.asarray(spacing)
+        return Volume(self.data, spacing, self.origin, self.metadata, affine, self.oriented)
 
 
 def _check_spacing(spacing: Any) -> tuple[float, float, float]:
@@ -116,20 +158,37 @@ def _check_spacing(spacing: Any) -> tuple[float, float, float]:
 # Readers and writers
 # --------------------------------------------------------------------------------------------
 
-def load_volume(path: str | os.PathLike, *, spacing: Any = None) -> Volume:
+def load_volume(path: str | os.PathLike, *, spacing: Any = None, frame: int | None = None,
+                series: str | int | None = None) -> Volume:
     """Read a volume from a ``.vol``, ``.npy``, NRRD or NIfTI file or a DICOM series folder.
+
+    Every reader gives the voxel-to-patient transform in LPS (``Volume.affine``, see
+    :mod:`pointillist.imaging.orientation`); ``.vol`` and ``.npy`` files carry none and
+    their voxel axes x, y, z are taken as L, P, S (a DICOM axial stack's order).
 
     Parameters
     ----------
     path : str or path-like
-        The file, or a folder of DICOM slices.
+        The file, or a folder of DICOM files (a ``.dcm`` file stands for its folder).
     spacing : float or sequence of 3 floats, optional
-        Override the voxel spacing ``(sx, sy, sz)`` the file gives (or lacks).
+        Override the voxel spacing ``(sx, sy, sz)`` the file gives (or lacks); directions are kept.
+    frame : int, optional
+        The volume to read from a 4-D input (a 4-D NIfTI, a DICOM series with several
+        volumes at each slice position); required for those, 0 is accepted for 3-D ones.
+    series : str or int, optional
+        A DICOM folder holding several series: the SeriesInstanceUID or its index in the
+        list the error message shows (sorted by UID).
 
     Raises
     ------
     ValueError
-        For a missing, unknown, corrupt or truncated file, naming it.
+        For a missing, unknown, corrupt or truncated file, naming it; a sheared orientation;
+        a 4-D input without ``frame`` (the message says how many frames there are).
+
+    Warns
+    -----
+    OrientationWarning
+        One line, when an orientation tag is missing or degenerate, saying what was assumed.
 
     Examples
     --------
@@ -138,13 +197,15 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None) -> Volume:
     >>> path = os.path.join(tempfile.mkdtemp(), "v.npy")
     >>> np.save(path, np.zeros((2, 3, 4), np.int16))
     >>> vol = load_volume(path, spacing=(0.5, 0.5, 2.0))
-    >>> vol.shape_xyz, vol.extent
-    ((4, 3, 2), (2.0, 1.5, 4.0))
+    >>> vol.shape_xyz, vol.extent, vol.axis_codes
+    ((4, 3, 2), (2.0, 1.5, 4.0), 'LPS')
     """
     path = Path(path)
     name = path.name.lower()
+    if frame is not None and (isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0):
+        raise ValueError(f"frame: expected a non-negative integer, got {frame!r}")
     if path.is_dir():
-        volume = read_dicom_series(path)
+        volume = read_dicom_series(path, frame=frame, series=series)
     elif not path.exists():
         raise ValueError(f"volume: no such file or folder: {path}")
     elif name.endswith(".vol"):
@@ -154,15 +215,39 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None) -> Volume:
     elif name.endswith((".nrrd", ".nhdr")):
         volume = read_nrrd(path)
     elif name.endswith((".nii", ".nii.gz")):
-        volume = read_nifti(path)
+        volume = read_nifti(path, frame=frame)
     elif name.endswith(".dcm"):
-        volume = read_dicom_series(path.parent)
+        volume = read_dicom_series(path.parent, frame=frame, series=series)
     else:
         raise ValueError(f"volume: {path}: unknown format; expected .vol, .npy, .nrrd, .nhdr, "
                          ".nii, .nii.gz or a DICOM folder")
+    if frame not in (None, 0) and volume.metadata.get("frames", 1) == 1:
+        raise ValueError(f"frame: {path} is a 3-D volume (one frame); got frame={frame}")
+    if series is not None and not (path.is_dir() or name.endswith(".dcm")):
+        raise ValueError(f"series: only a DICOM folder holds series; {path} is not one")
     if spacing is not None:
-        volume.spacing = _check_spacing(spacing)
+        volume = volume.respaced(spacing)
     return volume
+
+
+class OrientationWarning(UserWarning):
+    """A file's orientation was missing or degenerate and something was assumed (the message says what)."""
+
+
+def _warn(message: str) -> None:
+    import warnings
+
+    warnings.warn(message, OrientationWarning, stacklevel=3)
+
+
+def _pick_frame(path: Path, frames: int, frame: int | None) -> int:
+    """Check ``frame`` against a 4-D input's ``frames`` count (a clear error without one)."""
+    if frame is None:
+        raise ValueError(f"volume: {path} is 4-D with {frames} frames; choose one with frame=0..{frames - 1} "
+                         f"(--frame N)")
+    if frame >= frames:
+        raise ValueError(f"frame: {path} has {frames} frames (0..{frames - 1}), got frame={frame}")
+    return int(frame)
 
 
 _VOL_HEADER = struct.Struct("<3sB i 4i 6f")  # 'VOL', version, encoding, xres, yres, zres, ch, bbox
@@ -260,8 +345,24 @@ def read_npy(path: str | os.PathLike, *, spacing: Any = (1.0, 1.0, 1.0)) -> Volu
     return Volume(data, spacing, metadata={"format": "npy"})
 
 
+#: NRRD ``space`` values (full names and abbreviations of the NRRD spec) -> signs taking them to LPS.
+_NRRD_SPACES = {
+    "left-posterior-superior": (1, 1, 1), "lps": (1, 1, 1),
+    "right-anterior-superior": (-1, -1, 1), "ras": (-1, -1, 1),
+    "left-anterior-superior": (1, -1, 1), "las": (1, -1, 1),
+}
+
+
 def read_nrrd(path: str | os.PathLike) -> Volume:
-    """Read a 3-D NRRD file with pynrrd; spacing from ``space directions`` or ``spacings``."""
+    """Read a 3-D NRRD file with pynrrd, placed in LPS by ``space``, ``space directions``, ``space origin``.
+
+    ``space`` RAS, LAS and LPS (full names or abbreviations) are converted to LPS.
+    ``scanner-xyz`` (ACR-NEMA 2.0 / DICOM scanner coordinates; the NRRD spec does not pin
+    its axes down) and ``3D-right-handed`` / ``3D-left-handed`` are taken as LPS, with a
+    warning. A file with ``spacings`` only (no orientation) keeps its voxel axes as L, P, S
+    with a warning. The array is read in C order: ``data[z, y, x]`` with NRRD's first
+    (fastest) axis as x; ``space directions`` row n is axis n's step.
+    """
     try:
         import nrrd
     except ImportError:
@@ -273,23 +374,45 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
         raise ValueError(f"volume: {path}: not a readable NRRD file ({error or type(error).__name__})") from None
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NRRD, got {data.ndim} dimensions")
-    spacing = (1.0, 1.0, 1.0)
+    meta = {"format": "nrrd"}
     directions = header.get("space directions")
+    space = str(header.get("space", "")).strip().lower()
     if directions is not None:
         directions = np.asarray(directions, dtype=np.float64)
-        if directions.shape == (3, 3) and np.all(np.isfinite(directions)):
-            spacing = tuple(np.linalg.norm(directions, axis=1))
-    elif header.get("spacings") is not None:
+        if directions.shape != (3, 3) or not np.all(np.isfinite(directions)):
+            raise ValueError(f"volume: {path}: expected three 3-D 'space directions', got {directions.tolist()}")
+        signs = _NRRD_SPACES.get(space)
+        if signs is None:
+            _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
+            signs = (1, 1, 1)
+        meta["space"] = space
+        affine = np.eye(4)
+        affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
+        origin = np.asarray(header.get("space origin", (0.0, 0.0, 0.0)), dtype=np.float64)
+        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+            origin = np.zeros(3)
+        affine[:3, 3] = origin * signs
+        try:
+            return Volume(np.ascontiguousarray(data), metadata=meta, affine=affine)
+        except ValueError as error:
+            raise ValueError(f"volume: {path}: {error}") from None
+    spacing = (1.0, 1.0, 1.0)
+    if header.get("spacings") is not None:
         spacing = tuple(float(s) for s in header["spacings"])
+    _warn(f"volume: {path}: NRRD without 'space directions'; voxel axes x, y, z taken as L, P, S")
     origin = tuple(header.get("space origin", (0.0, 0.0, 0.0)))
-    return Volume(np.ascontiguousarray(data), spacing, origin, {"format": "nrrd"})
+    return Volume(np.ascontiguousarray(data), spacing, origin, meta)
 
 
-def read_nifti(path: str | os.PathLike) -> Volume:
-    """Read a 3-D NIfTI image with nibabel; spacing = norms of the affine's first three columns.
+def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
+    """Read a 3-D (or one frame of a 4-D) NIfTI image with nibabel, placed in LPS.
 
-    The array is transposed from NIfTI's (i, j, k) to (k, j, i). Scaled data
-    (scl_slope / scl_inter) is read as float32; unscaled data keeps its dtype.
+    The affine is nibabel's (``image.affine``: the sform, else the qform, else a
+    default from the voxel sizes, with a warning) converted from RAS+ to LPS with
+    :data:`~pointillist.imaging.orientation.LPS_FROM_RAS`. The array is transposed from
+    NIfTI's (i, j, k) to (k, j, i). Scaled data (scl_slope / scl_inter) is read as
+    float32; unscaled data keeps its dtype. A 4-D image needs ``frame`` (only that
+    volume is read).
     """
     try:
         import nibabel
@@ -298,35 +421,185 @@ def read_nifti(path: str | os.PathLike) -> Volume:
     path = Path(path)
     try:
         image = nibabel.load(str(path))
+        shape = tuple(int(n) for n in image.shape)
+        if len(shape) == 4 and shape[3] > 1:
+            index: Any = (..., _pick_frame(path, shape[3], frame))
+        elif len(shape) == 4:
+            index = (..., 0)
+        elif len(shape) == 3:
+            if frame not in (None, 0):
+                raise ValueError(f"frame: {path} is a 3-D volume (one frame); got frame={frame}")
+            index = ...
+        else:
+            raise ValueError(f"volume: {path}: expected a 3-D or 4-D NIfTI image, got shape {shape}")
         proxy = image.dataobj
         slope = getattr(proxy, "slope", 1.0)
         inter = getattr(proxy, "inter", 0.0)
         if (slope in (1.0, None) or np.isnan(slope)) and (inter in (0.0, None) or np.isnan(inter)):
-            data = np.asanyarray(proxy.get_unscaled() if hasattr(proxy, "get_unscaled") else proxy)
+            raw = proxy.get_unscaled() if index is ... and hasattr(proxy, "get_unscaled") else proxy[index]
+            data = np.asanyarray(raw)
         else:
-            data = np.asarray(image.get_fdata(dtype=np.float32))
+            data = np.asarray(proxy[index], dtype=np.float32)
+    except ValueError as error:
+        if str(error).startswith(("volume:", "frame:")):
+            raise
+        raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
     except Exception as error:  # noqa: BLE001 - nibabel raises many kinds
         raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
-    if data.ndim == 4 and data.shape[3] == 1:
-        data = data[..., 0]
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NIfTI image, got shape {data.shape}")
+    header = image.header
+    coded = [int(code) for code in (header.get_sform(coded=True)[1], header.get_qform(coded=True)[1])] \
+        if hasattr(header, "get_sform") else [1]
+    if not any(coded):
+        _warn(f"volume: {path}: NIfTI without sform or qform; assumed nibabel's default "
+              f"(voxel sizes, {''.join(nibabel.aff2axcodes(image.affine))})")
     affine = np.asarray(image.affine, dtype=np.float64)
-    spacing = tuple(np.linalg.norm(affine[:3, :3], axis=0))
-    return Volume(np.ascontiguousarray(data.transpose(2, 1, 0)), spacing, tuple(affine[:3, 3]),
-                  {"format": "nifti", "affine": affine.tolist()})
+    try:
+        return Volume(np.ascontiguousarray(data.transpose(2, 1, 0)), metadata={
+            "format": "nifti", "affine": affine.tolist(), "frames": shape[3] if len(shape) == 4 else 1},
+            affine=LPS_FROM_RAS @ affine)
+    except ValueError as error:
+        raise ValueError(f"volume: {path}: {error}") from None
 
 
-def read_dicom_series(folder: str | os.PathLike) -> Volume:
-    """Read a folder of DICOM slices (one series) as Hounsfield units.
+@dataclass
+class _Frame:
+    """One 2-D DICOM image (a file, or a frame of a multi-frame file) and where it lies."""
 
-    Files that are not DICOM or carry no pixel data are skipped. Slices are
-    sorted by ImagePositionPatient projected on the slice normal (the cross
-    product of ImageOrientationPatient's row and column directions), else by
-    InstanceNumber. Values = stored * RescaleSlope + RescaleIntercept, kept
-    int16 when slope and intercept are integers and the result fits, float32
-    otherwise. Spacing: PixelSpacing (column, row) and the median distance
-    between slice positions (SliceThickness for a single slice).
+    source: str
+    pixels: Any  # callable -> (rows, cols) array
+    position: np.ndarray | None
+    orientation: np.ndarray | None
+    pixel_spacing: tuple[float, float] | None
+    slope: float
+    intercept: float
+    order: tuple  # temporal sort key within one slice position
+
+
+def _item(ds: Any, *path: str) -> Any:
+    """``ds.A[0].B[0]...`` or None (functional-group look-ups)."""
+    for name in path:
+        value = getattr(ds, name, None) if ds is not None else None
+        if value is None:
+            return None
+        if name.endswith("Sequence"):
+            if len(value) == 0:
+                return None
+            value = value[0]
+        ds = value
+    return ds
+
+
+def _floats(value: Any, count: int) -> np.ndarray | None:
+    try:
+        out = np.asarray([float(v) for v in value], dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return out if out.shape == (count,) and np.all(np.isfinite(out)) else None
+
+
+def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
+    """The 2-D frames of one DICOM dataset: classic single-frame, classic multi-frame, enhanced."""
+    slope = float(ds.get("RescaleSlope", 1.0))
+    intercept = float(ds.get("RescaleIntercept", 0.0))
+    if "DoseGridScaling" in ds and "RescaleSlope" not in ds:
+        slope = float(ds.DoseGridScaling)  # RT Dose: stored x DoseGridScaling = Gy
+    count = int(ds.get("NumberOfFrames", 1) or 1)
+    iop = _floats(ds.get("ImageOrientationPatient"), 6)
+    ipp = _floats(ds.get("ImagePositionPatient"), 3)
+    spacing = _floats(ds.get("PixelSpacing"), 2)
+    instance = int(ds.get("InstanceNumber", 0) or 0)
+    when = str(ds.get("AcquisitionTime", "") or ds.get("ContentTime", ""))
+    if count == 1 and "PerFrameFunctionalGroupsSequence" not in ds:
+        return [_Frame(file.name, lambda: ds.pixel_array, ipp, iop, tuple(spacing) if spacing is not None else None,
+                       slope, intercept, (int(ds.get("TemporalPositionIdentifier", 0) or 0), when, instance))]
+    cache: dict[str, np.ndarray] = {}
+
+    def frame_pixels(n: int):
+        def read():
+            if "all" not in cache:
+                pixels = ds.pixel_array
+                cache["all"] = pixels.reshape((count,) + pixels.shape[-2:])
+            return cache["all"][n]
+        return read
+
+    frames = []
+    per_frame = ds.get("PerFrameFunctionalGroupsSequence")
+    shared = _item(ds, "SharedFunctionalGroupsSequence")
+    if per_frame is not None:  # enhanced multi-frame: per-frame (else shared) functional groups
+        for n in range(count):
+            group = per_frame[n] if n < len(per_frame) else None
+
+            def look(*path, group=group):
+                found = _item(group, *path)
+                return found if found is not None else _item(shared, *path)
+
+            position = _floats(getattr(look("PlanePositionSequence"), "ImagePositionPatient", None), 3)
+            orientation = _floats(getattr(look("PlaneOrientationSequence"), "ImageOrientationPatient", None), 6)
+            measures = look("PixelMeasuresSequence")
+            pixel_spacing = _floats(getattr(measures, "PixelSpacing", None), 2)
+            transform = look("PixelValueTransformationSequence")
+            s = float(getattr(transform, "RescaleSlope", slope) if transform is not None else slope)
+            b = float(getattr(transform, "RescaleIntercept", intercept) if transform is not None else intercept)
+            content = look("FrameContentSequence")
+            temporal = int(getattr(content, "TemporalPositionIndex", 0) or 0) if content is not None else 0
+            stamp = str(getattr(content, "FrameAcquisitionDateTime", "") or "") if content is not None else ""
+            frames.append(_Frame(f"{file.name}[{n}]", frame_pixels(n),
+                                 position if position is not None else ipp,
+                                 orientation if orientation is not None else iop,
+                                 tuple(pixel_spacing) if pixel_spacing is not None else
+                                 (tuple(spacing) if spacing is not None else None), s, b, (temporal, stamp, n)))
+        return frames
+    # classic multi-frame (e.g. RT Dose): frame n at ImagePositionPatient + offset[n] along the normal
+    offsets = _floats(ds.get("GridFrameOffsetVector"), count)
+    if offsets is None or ipp is None or iop is None:
+        _warn(f"volume: {file}: multi-frame file without GridFrameOffsetVector/position/orientation; "
+              "frames stacked 1 mm apart along the slice normal")
+        offsets = np.arange(count, dtype=np.float64)
+    for n in range(count):
+        position = None
+        if ipp is not None:
+            normal = np.cross(iop[:3], iop[3:]) if iop is not None else np.array([0.0, 0.0, 1.0])
+            position = ipp + (offsets[n] - (offsets[0] if offsets[0] != 0 else 0.0)) * normal
+        frames.append(_Frame(f"{file.name}[{n}]", frame_pixels(n), position, iop,
+                             tuple(spacing) if spacing is not None else None, slope, intercept, (0, "", n)))
+    return frames
+
+
+def _dicom_series_label(datasets: list) -> str:
+    first = datasets[0][1]
+    description = str(first.get("SeriesDescription", "") or "").strip()
+    frames = sum(int(ds.get("NumberOfFrames", 1) or 1) for _, ds in datasets)
+    text = f"{first.get('Modality', '?')}, {len(datasets)} file(s), {frames} image(s)"
+    return text + (f", {description!r}" if description else "")
+
+
+def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
+                      series: str | int | None = None) -> Volume:
+    """Read a DICOM series (a folder of slices, or a multi-frame file) as Hounsfield units, placed in LPS.
+
+    Files that are not DICOM or carry no pixel data are skipped. A folder with several
+    series (SeriesInstanceUID) needs ``series`` (the UID, or its index in the sorted
+    list the error shows). Images come from single-frame files, classic multi-frame
+    files (e.g. RT Dose: ``GridFrameOffsetVector``) or enhanced multi-frame files
+    (per-frame or shared functional groups: PlanePositionSequence,
+    PlaneOrientationSequence, PixelMeasuresSequence, PixelValueTransformationSequence).
+
+    Geometry: voxel x runs along ImageOrientationPatient's row direction (spacing
+    PixelSpacing[1]), y along its column direction (PixelSpacing[0]), z along the slice
+    normal (row x column) with the slices sorted by ImagePositionPatient projected on it;
+    the slice spacing is the median distance between consecutive positions (not
+    SliceThickness, used only for a single slice). Slices not stacked along the normal
+    (gantry tilt) are refused as sheared. Several images at each position (the same
+    count everywhere) make a 4-D series: ``frame`` picks one (images at a position
+    ordered by TemporalPositionIdentifier / TemporalPositionIndex, acquisition time,
+    instance or frame number). A missing ImageOrientationPatient or one that is not
+    two orthogonal unit vectors falls back to axial (1,0,0,0,1,0), a missing
+    ImagePositionPatient to InstanceNumber order, each with a one-line warning.
+
+    Values = stored * RescaleSlope + RescaleIntercept, kept int16 when slope and
+    intercept are integers and the result fits, float32 otherwise.
     """
     try:
         import pydicom
@@ -334,7 +607,7 @@ def read_dicom_series(folder: str | os.PathLike) -> Volume:
     except ImportError:
         raise ValueError("volume: reading DICOM needs pydicom (pip install 'pointillist[medical]')") from None
     folder = Path(folder)
-    slices = []
+    datasets = []
     problems = []
     for file in sorted(p for p in folder.iterdir() if p.is_file()):
         try:
@@ -343,53 +616,128 @@ def read_dicom_series(folder: str | os.PathLike) -> Volume:
             problems.append(f"{file.name}: {error}")
             continue
         if "PixelData" in ds:
-            slices.append((file, ds))
-    if not slices:
+            datasets.append((file, ds))
+    if not datasets:
         detail = f" ({problems[0]})" if problems else ""
         raise ValueError(f"volume: {folder}: no DICOM slices with pixel data{detail}")
-    first = slices[0][1]
+    groups: dict[str, list] = {}
+    for file, ds in datasets:
+        groups.setdefault(str(ds.get("SeriesInstanceUID", "") or ""), []).append((file, ds))
+    uids = sorted(groups)
+    if series is not None:
+        key = str(series).strip()
+        if key in groups:
+            chosen = key
+        elif key.isdigit() and int(key) < len(uids):
+            chosen = uids[int(key)]
+        else:
+            listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
+            raise ValueError(f"series: {series!r} is not a series of {folder}; it holds {listing}")
+    elif len(uids) > 1:
+        listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
+        raise ValueError(f"volume: {folder} holds {len(uids)} DICOM series; choose one with series= "
+                         f"(--series UID or index): {listing}")
+    else:
+        chosen = uids[0]
+    datasets = groups[chosen]
+    first = datasets[0][1]
     try:
-        orientation = np.asarray(first.get("ImageOrientationPatient", [1, 0, 0, 0, 1, 0]), dtype=np.float64)
-        normal = np.cross(orientation[:3], orientation[3:])
-        positions = []
-        for _, ds in slices:
-            if "ImagePositionPatient" in ds:
-                positions.append(float(np.dot(np.asarray(ds.ImagePositionPatient, dtype=np.float64), normal)))
-            else:
-                positions.append(float(ds.get("InstanceNumber", len(positions))))
-        order = np.argsort(positions, kind="stable")
-        slope = float(first.get("RescaleSlope", 1.0))
-        intercept = float(first.get("RescaleIntercept", 0.0))
-        rows, cols = int(first.Rows), int(first.Columns)
-        integral = slope.is_integer() and intercept.is_integer()
-        data = np.empty((len(slices), rows, cols), dtype=np.float32)
-        for z, index in enumerate(order):
-            ds = slices[index][1]
-            pixels = ds.pixel_array
-            if pixels.shape != (rows, cols):
-                raise ValueError(f"slice {slices[index][0].name} is {pixels.shape}, expected {(rows, cols)}")
-            s = float(ds.get("RescaleSlope", slope))
-            b = float(ds.get("RescaleIntercept", intercept))
-            integral = integral and s.is_integer() and b.is_integer()
-            data[z] = pixels.astype(np.float32) * s + b
+        frames = [f for file, ds in datasets for f in _dicom_frames(file, ds)]
+        return _stack_dicom(folder, frames, first, frame)
     except ValueError as error:
+        if str(error).startswith(("volume:", "frame:")):
+            raise
         raise ValueError(f"volume: {folder}: bad DICOM series ({error})") from None
     except Exception as error:  # noqa: BLE001 - pydicom decoding errors of truncated files
         raise ValueError(f"volume: {folder}: unreadable DICOM slice ({type(error).__name__}: {error})") from None
+
+
+def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | None) -> Volume:
+    """Sort DICOM images into a volume (one frame of a 4-D series) with its LPS affine."""
+    axial = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    iop = frames[0].orientation
+    if iop is None:
+        _warn(f"volume: {folder}: no ImageOrientationPatient; assumed axial (1,0,0,0,1,0)")
+        iop = axial
+    elif (abs(np.linalg.norm(iop[:3]) - 1) > 1e-3 or abs(np.linalg.norm(iop[3:]) - 1) > 1e-3
+          or abs(float(np.dot(iop[:3], iop[3:]))) > 1e-3):
+        _warn(f"volume: {folder}: degenerate ImageOrientationPatient {iop.tolist()}; assumed axial (1,0,0,0,1,0)")
+        iop = axial
+    else:
+        for f in frames[1:]:
+            if f.orientation is not None and np.abs(f.orientation - frames[0].orientation).max() > 1e-4:
+                raise ValueError(f"volume: {folder}: images {frames[0].source} and {f.source} have different "
+                                 "orientations (a localizer or several stacks); cannot stack them")
+    row = iop[:3] / np.linalg.norm(iop[:3])
+    col = iop[3:] - np.dot(iop[3:], row) * row
+    col /= np.linalg.norm(col)
+    normal = np.cross(row, col)
+    if any(f.position is None for f in frames):
+        _warn(f"volume: {folder}: no ImagePositionPatient; slices in instance order, 1 mm apart (or SliceThickness)")
+        thickness = float(first.get("SpacingBetweenSlices", 0) or first.get("SliceThickness", 1.0) or 1.0)
+        for n, f in enumerate(sorted(frames, key=lambda f: f.order[2])):
+            f.position = normal * thickness * n
+    distances = np.array([float(np.dot(f.position, normal)) for f in frames])
+    order = np.argsort(distances, kind="stable")
+    # group images at the same position (within 1e-3 mm): several per position = frames in time
+    stacks: list[list[int]] = []
+    for index in order:
+        if stacks and abs(distances[index] - distances[stacks[-1][0]]) < 1e-3:
+            stacks[-1].append(int(index))
+        else:
+            stacks.append([int(index)])
+    counts = {len(s) for s in stacks}
+    if len(counts) != 1:
+        raise ValueError(f"volume: {folder}: slice positions hold different numbers of images "
+                         f"({min(counts)}..{max(counts)}); cannot make a volume")
+    per_position = counts.pop()
+    pick = 0
+    if per_position > 1:
+        pick = _pick_frame(folder, per_position, frame)
+    elif frame not in (None, 0):
+        raise ValueError(f"frame: {folder} is a 3-D volume (one frame); got frame={frame}")
+    chosen = [frames[sorted(s, key=lambda i: frames[i].order)[pick]] for s in stacks]
+    first_frame = chosen[0]
+    rows, cols = (int(first.Rows), int(first.Columns))
+    integral = True
+    data = np.empty((len(chosen), rows, cols), dtype=np.float32)
+    for z, f in enumerate(chosen):
+        pixels = f.pixels()
+        if pixels.shape != (rows, cols):
+            raise ValueError(f"slice {f.source} is {pixels.shape}, expected {(rows, cols)}")
+        integral = integral and float(f.slope).is_integer() and float(f.intercept).is_integer()
+        data[z] = pixels.astype(np.float32) * np.float32(f.slope) + np.float32(f.intercept)
     if integral and data.min() >= -32768 and data.max() <= 32767:
         data = data.astype(np.int16)
-    pixel_spacing = [float(v) for v in first.get("PixelSpacing", [1.0, 1.0])]
-    sorted_pos = np.asarray(positions, dtype=np.float64)[order]
-    if len(slices) > 1:
-        dz = float(np.median(np.diff(sorted_pos)))
+    pixel_spacing = first_frame.pixel_spacing
+    if pixel_spacing is None or not all(s > 0 for s in pixel_spacing):
+        _warn(f"volume: {folder}: no usable PixelSpacing; assumed 1 mm")
+        pixel_spacing = (1.0, 1.0)
+    positions = np.array([f.position for f in chosen])
+    if len(chosen) > 1:
+        steps = np.diff(positions, axis=0)
+        along = steps @ normal
+        dz = float(np.median(along))
         if not dz > 0:
             raise ValueError(f"volume: {folder}: slices share one position; cannot stack them")
+        across = np.linalg.norm(steps - along[:, None] * normal, axis=1)
+        if float(across.max()) > 1e-3 * max(dz, 1.0) + 1e-4:
+            raise ValueError(f"volume: {folder}: slices are not stacked along their normal (sheared, e.g. a "
+                             f"gantry tilt: {float(across.max()):.3g} mm sideways a slice); resample it first")
+        if float(np.abs(along - dz).max()) > 0.01 * dz:
+            _warn(f"volume: {folder}: uneven slice spacing ({float(along.min()):g}..{float(along.max()):g} mm); "
+                  f"used the median {dz:g} mm")
     else:
-        dz = float(first.get("SliceThickness", 1.0) or 1.0)
-    origin = tuple(float(v) for v in slices[order[0]][1].get("ImagePositionPatient", (0.0, 0.0, 0.0)))
-    meta = {"format": "dicom", "slices": len(slices), "modality": str(first.get("Modality", "")),
-            "rescale_slope": slope, "rescale_intercept": intercept}
-    return Volume(data, (pixel_spacing[1], pixel_spacing[0], dz), origin, meta)
+        dz = float(first.get("SpacingBetweenSlices", 0) or first.get("SliceThickness", 1.0) or 1.0)
+    affine = np.eye(4)
+    affine[:3, 0] = row * pixel_spacing[1]
+    affine[:3, 1] = col * pixel_spacing[0]
+    affine[:3, 2] = normal * dz
+    affine[:3, 3] = positions[0]
+    meta = {"format": "dicom", "slices": len(chosen), "frames": per_position,
+            "modality": str(first.get("Modality", "")), "series": str(first.get("SeriesInstanceUID", "")),
+            "rescale_slope": first_frame.slope, "rescale_intercept": first_frame.intercept}
+    return Volume(data, metadata=meta, affine=affine)
 
 
 # --------------------------------------------------------------------------------------------

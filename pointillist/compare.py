@@ -8,7 +8,9 @@ and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose E
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
 (:func:`image_errors`), and :func:`pointillist.compare_report.write_report` writes
-``results.csv``, ``results.md`` and the two log-log plots. On a Dask cluster
+``results.csv``, ``results.md`` and the two log-log plots, and
+:func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
+maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
 (:func:`prerender_sweep`) every missing render is a task; the scoring pass that
 follows finds them finished. :func:`compare_scene` is ``pointillist compare``.
 """
@@ -18,7 +20,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -31,8 +32,8 @@ from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "flip_undefined",
-    "FLIP_MIN_LUMINANCE", "run_sweep",
+    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "error_maps", "FLIP_MIN_LUMINANCE",
+    "run_sweep",
     "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
     "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
 ]
@@ -237,54 +238,27 @@ def _rgb(image: np.ndarray) -> np.ndarray:
     return image[..., :3]
 
 #: HDR-FLIP's exposure range runs from log2(x / max Y) to log2(x / max(median Y, FLT_EPSILON)) (Y the
-#: reference's luminance, Rec. 709 weights); flip-evaluator aborts the process when the start exceeds the
-#: stop, i.e. when max Y < FLT_EPSILON (measured: an all-black, all-NaN or 1e-30 reference).
-#: :func:`image_errors` calls it only when max Y reaches twice that.
+#: reference's luminance, Rec. 709 weights): flip-evaluator exits the process when the start exceeds the
+#: stop, which happens for every reference whose max Y is below FLT_EPSILON (measured: one pixel of 1e-30
+#: on black). Below twice that, :func:`_flip_exposures` passes the exposure itself.
 FLIP_MIN_LUMINANCE = 2.0 * float(np.finfo(np.float32).eps)
 
 
-def _flip_clean(a: np.ndarray) -> np.ndarray:
-    """FLIP's input: NaN and negatives set to 0, +inf and values above 1e4 to 1e4, float32."""
-    return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
-
-
-def flip_undefined(reference: np.ndarray) -> str | None:
-    """Why HDR-FLIP cannot be computed against ``reference`` (``None`` when it can).
-
-    flip-evaluator aborts the interpreter (it cannot raise) when the reference's largest
-    luminance, after :func:`image_errors`' cleaning, is below FLT_EPSILON: all black,
-    all NaN, all negative or tiny values. See :data:`FLIP_MIN_LUMINANCE`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> flip_undefined(np.zeros((2, 2, 3)))
-    'the reference has no positive finite value (largest luminance 0)'
-    >>> flip_undefined(np.full((2, 2, 3), 0.5)) is None
-    True
-    """
-    r = _flip_clean(_rgb(reference)).astype(np.float64)
-    luminance = r[..., 0] * 0.2126 + r[..., 1] * 0.7152 + r[..., 2] * 0.0722
-    largest = float(luminance.max()) if luminance.size else 0.0
-    if largest >= FLIP_MIN_LUMINANCE:
-        return None
-    if largest == 0.0:
-        return "the reference has no positive finite value (largest luminance 0)"
-    return f"the reference's largest luminance {largest:.3g} is below {FLIP_MIN_LUMINANCE:.3g}"
-
-
-def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, float]:
+def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
+                 maps: dict[str, np.ndarray] | None = None) -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
 
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
     - ``relmse = mean((x - r)^2 / (r^2 + 0.01))`` (:data:`RELMSE_EPSILON`);
     - ``flip``: mean HDR-FLIP (flip-evaluator, linear sRGB input, default viewing
-      conditions), NaN values and negatives set to 0 first. NaN, with a
-      ``RuntimeWarning``, where FLIP is undefined (:func:`flip_undefined`: a black
-      reference; flip-evaluator would abort the process).
+      conditions), NaN values and negatives set to 0 first. Where flip-evaluator would
+      exit the process (a black, constant or nearly black reference) the exposure is
+      passed explicitly (:func:`_flip_exposures`), so every reference gets a value.
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
-    reported, not hidden). Grey (H, W) images are compared as RGB.
+    reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
+    receives the per-pixel maps whose means these are (:func:`error_maps`), at no
+    extra cost.
 
     Examples
     --------
@@ -294,54 +268,125 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True)
     >>> round(e["rmse"], 6), round(e["relmse"], 6)
     (0.1, 0.038462)
     """
+    x, r = _pair(image, reference)
+    diff2 = (x - r) ** 2
+    relative = diff2 / (r * r + RELMSE_EPSILON)
+    result = {"rmse": float(np.sqrt(diff2.mean())), "relmse": float(relative.mean()), "flip": math.nan}
+    if maps is not None:
+        maps["relmse"] = relative.mean(axis=2).astype(np.float32)
+    if flip:
+        flip_map, result["flip"] = _flip(x, r)
+        if maps is not None:
+            maps["flip"] = flip_map
+    return result
+
+def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, np.ndarray]:
+    """Per-pixel errors of ``image`` against ``reference``: (H, W) float32 maps.
+
+    - ``relmse``: ``mean over RGB of (x - r)^2 / (r^2 + 0.01)``; its mean over the
+      pixels is :func:`image_errors`' ``relmse``;
+    - ``flip`` (with ``flip``): the HDR-FLIP error map in [0, 1] (flip-evaluator, the
+      input cleaned as in :func:`image_errors`); its mean is the ``flip`` there.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = np.zeros((1, 2, 3), np.float32)
+    >>> error_maps(ref + [[[0.1, 0.1, 0.1], [0.0, 0.0, 0.3]]], ref, flip=False)["relmse"].tolist()
+    [[1.0, 3.0]]
+    """
+    maps: dict[str, np.ndarray] = {}
+    image_errors(image, reference, flip=flip, maps=maps)
+    return maps
+
+def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x, r = _rgb(image), _rgb(reference)
     if x.shape != r.shape:
         raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
     if r.ndim != 3 or r.size == 0:
         raise ValueError(f"reference: expected a non-empty (H, W) or (H, W, C) image, got shape {r.shape}")
-    diff2 = (x - r) ** 2
-    result = {"rmse": float(np.sqrt(diff2.mean())),
-              "relmse": float((diff2 / (r * r + RELMSE_EPSILON)).mean()),
-              "flip": math.nan}
-    if flip:
-        reason = flip_undefined(r)
-        if reason is not None:
-            warnings.warn(f"FLIP not computed (NaN): {reason}", RuntimeWarning, stacklevel=2)
-            return result
-        import flip_evaluator
+    return x, r
 
-        _, mean, _ = flip_evaluator.evaluate(_flip_clean(r), _flip_clean(x), "HDR", applyMagma=False)
-        result["flip"] = float(mean)
-    return result
+def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """HDR-FLIP of ``x`` against ``r``: the (H, W) map and its mean."""
+    import flip_evaluator
+
+    def clean(a):
+        return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
+
+    reference = clean(r)
+    error_map, mean, _ = flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,
+                                                 **_flip_exposures(reference))
+    return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
+
+
+def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
+    """HDR-FLIP's own exposure range, except where flip-evaluator would exit the process.
+
+    flip-evaluator takes start = log2(x_max / Y_max) and stop = log2(x_max / Y_median) from the
+    reference's luminance and calls ``exit`` ("Start exposure must be smaller than stop exposure!")
+    when rounding puts start above stop (a constant reference of 1e-7) or the reference is black.
+    In those cases (median luminance = maximum) both are passed explicitly as the one exposure
+    log2(x_max / Y_max) (0 for a black reference), which is what flip-evaluator uses when they tie.
+    So are references whose maximum is below :data:`FLIP_MIN_LUMINANCE` (the median is taken
+    as at least FLT_EPSILON there: one pixel of 1e-30 on black exited the process too).
+    """
+    luminance = reference @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    y_max, y_median = float(luminance.max()), float(np.median(luminance))
+    if y_median < y_max * (1 - 1e-5) and y_max >= FLIP_MIN_LUMINANCE:
+        return {}
+    exposure = math.log2(_FLIP_ACES_X_MAX / y_max) if y_max > 0 else 0.0
+    return {"parameters": {"startExposure": exposure, "stopExposure": exposure}}
+
+
+def _aces_x_max(t: float = 0.85) -> float:
+    """HDR-FLIP's x_max: where the ACES fit (with FLIP's 0.6 pre-exposure) reaches t (Andersson et al. 2021)."""
+    k0, k1, k2, k3, k4, k5 = 0.36 * 2.51, 0.6 * 0.03, 0.0, 0.36 * 2.43, 0.6 * 0.59, 0.14
+    c0, c1 = (k1 - k4 * t) / (k0 - k3 * t), (k2 - k5 * t) / (k0 - k3 * t)
+    return -0.5 * c0 + math.sqrt(0.25 * c0 * c0 - c1)
+
+
+_FLIP_ACES_X_MAX = _aces_x_max()
 
 
 # ------------------------------------------------------------------------------ sweep
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
-              reference: Path, progress: bool = True, render: Callable[..., RenderRecord] = render_one,
-              notes: list[str] | None = None) -> list[RenderRecord]:
+              reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
+              maps: dict[str, dict[str, np.ndarray]] | None = None,
+              render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
 
-    Where FLIP is undefined for the reference (:func:`flip_undefined`) every row's FLIP
-    is NaN and one line saying why is appended to ``notes``.
+    With ``progress``, a progress bar draws on a terminal (standard error a TTY);
+    otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
+    of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
+    seed-0 render (by ``record.exr``, :func:`error_maps`) for the report page.
     """
+    import sys
+
     from tqdm import tqdm
 
+    from pointillist.compare_report import format_time
     from pointillist.imaging.io import read_exr
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
-    reason = flip_undefined(ref_image)
-    if reason is not None and notes is not None:
-        notes.append(f"FLIP not computed (NaN in every row): {reason}")
     records = []
-    bar = tqdm(tasks, desc="compare", unit="render", disable=not progress)
-    for task in bar:
+    terminal = progress and sys.stderr.isatty()
+    bar = tqdm(tasks, desc="compare", unit="render", disable=not terminal)
+    for number, task in enumerate(bar, 1):
         bar.set_postfix_str(task.stem)
-        records.append(render(scene_path, task.method, task.value, task.seed, params, out_dir, key))
+        record = render(scene_path, task.method, task.value, task.seed, params, out_dir, key)
+        records.append(record)
+        if progress and not terminal and log is not None:
+            log(f"compare {number}/{len(tasks)}: {task.stem} "
+                + ("(reused)" if record.cached else format_time(record.time)))
     for record in records:
         image = read_exr(Path(out_dir) / "renders" / record.exr).image
-        record.__dict__.update(image_errors(image, ref_image, flip=reason is None))
+        kept = {} if maps is not None and record.seed == 0 else None
+        record.__dict__.update(image_errors(image, ref_image, maps=kept))
+        if kept is not None:
+            maps[record.exr] = kept
     return records
 
 
@@ -419,17 +464,22 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                   spp: Sequence[int] = DEFAULT_SPP, seeds: int = 1, reference_spp: int = 4096,
                   reference: str | os.PathLike | None = None, out_dir: str | os.PathLike | None = None,
                   params: dict[str, str] | None = None, workers: int | None = None, scheduler: str | None = None,
-                  progress: bool = True, log: Callable[[str], None] = lambda line: None) -> CompareResult:
+                  progress: bool = True, report: bool = True,
+                  log: Callable[[str], None] = lambda line: None) -> CompareResult:
     """``pointillist compare``: sweep ``methods`` over ``spp`` and ``seeds`` on one scene, score
     every render against a reference and write the report into ``out_dir``.
 
     The reference is ``reference`` (an EXR of the render's size) or a render of
     :data:`REFERENCE_SAMPLER` at ``reference_spp``, kept in ``out_dir/reference``.
     Everything that can be checked (scene, sample counts, reference size) is checked
-    before the first render. ``notes`` of the result (also given to ``log`` and listed in
-    results.md) say which reconstruction filter the film uses (only a box filter makes a
-    pixel the plain average of its samples), when the reference took another spp than asked
-    and when FLIP could not be computed. ``log`` receives progress lines (e.g. ``print``).
+    before the first render. ``log`` receives progress lines (e.g. ``print``; one per
+    finished render when ``progress`` is on and standard error is not a terminal).
+    With ``report``, ``out_dir/report.html`` (:mod:`pointillist.compare_html`) is
+    written too, from every render of the sweep on disk (also those of earlier,
+    interrupted runs); ``paths["html"]`` is its path and ``notes`` say its size.
+    ``notes`` (also given to ``log`` and listed in results.md) also say which
+    reconstruction filter the film uses (only a box filter makes a pixel the plain
+    average of its samples) and when the reference took another spp than asked.
 
     Raises
     ------
@@ -479,13 +529,17 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                     "(it rounds up to a square)")
             notes.append(note)
             log(note)
-    before = len(notes)
+    maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
     records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
-                        notes=notes)
-    for note in notes[before:]:
-        log(note)
-    paths = write_report(records, out, scene=str(scene), reference=str(reference),
-                         title=f"Sampler comparison: {scene.name}", notes=notes)
+                        log=log, maps=maps)
+    title = f"Sampler comparison: {scene.name}"
+    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
+    if report:
+        from pointillist.compare_html import write_html_report
+
+        page = write_html_report(records, out, scene=str(scene), reference=reference, title=title, maps=maps)
+        paths["html"] = page.path
+        notes.append(page.summary)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
                          cluster_renders=cluster_renders, notes=notes)
 

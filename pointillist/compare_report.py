@@ -4,6 +4,9 @@ Everything here works on :class:`pointillist.compare.RenderRecord` values (or th
 rows :func:`summarise` makes of them) and renders nothing: :func:`write_report`
 writes ``results.csv``, ``results.md`` (table, fitted log-log slopes, equal-time and
 equal-error rankings) and the two log-log plots of error against time and spp.
+Times read with three significant digits in a fitting unit (:func:`format_time`);
+renders faster than :data:`TIMING_FLOOR` are too short to time reliably: they are
+marked, and the time slopes and rankings leave them out.
 """
 
 from __future__ import annotations
@@ -19,7 +22,39 @@ import numpy as np
 
 from pointillist.compare_methods import setting_label, sweep_parameter
 
-__all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "write_report"]
+__all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "write_report",
+           "format_time", "results_table", "TIMING_FLOOR"]
+
+
+#: Renders shorter than this (seconds) are too short to time reliably here: timer resolution,
+#: thread scheduling on a shared machine and fixed per-launch costs weigh as much as the work.
+TIMING_FLOOR = 0.020
+
+
+def format_time(seconds: float, spread: float | None = None) -> str:
+    """``seconds`` with three significant digits in s, ms or µs (and ``± spread`` in that unit).
+
+    Examples
+    --------
+    >>> format_time(0.001234), format_time(0.0123), format_time(1.5), format_time(123.4)
+    ('1.23 ms', '12.3 ms', '1.50 s', '123 s')
+    >>> format_time(0.0000456), format_time(0.9996), format_time(4321.0), format_time(0.0)
+    ('45.6 µs', '1.00 s', '4321 s', '0 s')
+    >>> format_time(0.0123, 0.00045)
+    '12.3 ± 0.45 ms'
+    """
+    if not math.isfinite(seconds):
+        return "nan" if math.isnan(seconds) else str(seconds)
+    if seconds == 0:
+        return "0 s" if spread is None else f"0 ± {format_time(spread)}"
+    for unit, scale in (("s", 1.0), ("ms", 1e-3), ("µs", 1e-6)):
+        if abs(seconds) >= 0.9995 * scale or unit == "µs":
+            break
+    value = seconds / scale
+    text = f"{value:.0f}" if abs(value) >= 999.5 else f"{value:#.3g}".rstrip(".")
+    if spread is not None:
+        text += f" ± {spread / scale:.3g}"
+    return f"{text} {unit}"
 
 
 def fit_slope(x: Sequence[float], y: Sequence[float]) -> float:
@@ -46,13 +81,18 @@ def summarise(records: Sequence[Any]) -> list[dict[str, Any]]:
         rows.append(row)
     return rows
 
-def slopes(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
-    """Fitted log-log slopes per method: MSE against spp and against time."""
+def slopes(rows: Sequence[dict[str, Any]], min_time: float = 0.0) -> dict[str, dict[str, float]]:
+    """Fitted log-log slopes per method: MSE against spp and against time.
+
+    The time slope is fitted over the points whose mean time is at least ``min_time``
+    (e.g. :data:`TIMING_FLOOR`): NaN when fewer than two remain.
+    """
     result = {}
     for method in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == method]
+        timed = [r for r in mine if r["time"] >= min_time]
         result[method] = {"mse_vs_spp": fit_slope([r["spp"] for r in mine], [r["mse"] for r in mine]),
-                          "mse_vs_time": fit_slope([r["time"] for r in mine], [r["mse"] for r in mine])}
+                          "mse_vs_time": fit_slope([r["time"] for r in timed], [r["mse"] for r in timed])}
     return result
 
 def equal_time_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
@@ -116,6 +156,34 @@ _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "ex
                "warm_up", "warm_up_compile", "kernels", "cache_hits", "rmse", "relmse", "flip", "width", "height",
                "exr")
 
+#: Columns of results.csv in seconds: written with three significant digits.
+_CSV_TIMES = ("time", "compile", "trace", "execute", "total", "warm_up", "warm_up_compile")
+
+_SHORT = "*"
+
+def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """The results table as text: ``(header, cells)``, one list of cells per row of
+    :func:`summarise`: means ± standard deviations over seeds (means alone for one seed);
+    a time under :data:`TIMING_FLOOR` ends in ``*``.
+
+    Examples
+    --------
+    >>> rows = [{"method": "jitter", "value": 4.0, "spp": 4.0, "seeds": 2, "time": 0.0123, "time_std": 0.0004,
+    ...          "compile": 0.5, "rmse": 0.01, "rmse_std": 0.001, "relmse": 2e-3, "flip": 0.05}]
+    >>> results_table(rows)[1][0]
+    ['jitter', '4 spp', '4', '2', '12.3 ± 0.4 ms *', '500 ms', '0.01000 ± 0.00100', '2.000e-03', '0.0500']
+    """
+    header = ["method", "setting", "spp", "seeds", "time", "compile", "RMSE", "relMSE", "FLIP"]
+    cells = []
+    for r in rows:
+        several = r["seeds"] > 1  # one seed: no spread to show
+        time = format_time(r["time"], r["time_std"] if several else None)
+        time += f" {_SHORT}" if r["time"] < TIMING_FLOOR else ""
+        rmse = f"{r['rmse']:.5f}" + (f" ± {r['rmse_std']:.5f}" if several else "")
+        cells.append([r["method"], setting_label(r["method"], r["value"]), f"{r['spp']:.4g}", str(r["seeds"]),
+                      time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}"])
+    return header, cells
+
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
                  reference: str, title: str | None = None, notes: Sequence[str] = ()) -> dict[str, Path]:
     """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``.
@@ -134,53 +202,67 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
             for record in records:
                 row = record.as_dict()
                 row["exr"] = f"renders/{record.exr}"
+                row.update({name: f"{row[name]:.3g}" for name in _CSV_TIMES})
                 writer.writerow(row)
 
     atomic_write(paths["csv"], write_csv)
 
     rows = summarise(records)
-    fitted = slopes(rows)
+    fitted = slopes(rows, min_time=TIMING_FLOOR)
+    timed = [r for r in rows if r["time"] >= TIMING_FLOOR]
+    floor = format_time(TIMING_FLOOR)
+    header, cells = results_table(rows)
     lines = [f"# {title or 'Sampler comparison'}", "",
              f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
              "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
              *[f"- {note}" for note in notes], *([""] if notes else []),
-             "| method | setting | spp | seeds | time (s) | compile (s) | RMSE | relMSE | FLIP |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        lines.append(f"| {r['method']} | {setting_label(r['method'], r['value'])} | {r['spp']:.4g} | {r['seeds']} "
-                     f"| {r['time']:.3f} ± {r['time_std']:.3f} "
-                     f"| {r['compile']:.3f} | {r['rmse']:.5f} ± {r['rmse_std']:.5f} "
-                     f"| {r['relmse']:.3e} | {r['flip']:.4f} |")
+             "| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
+    lines += ["| " + " | ".join(row) + " |" for row in cells]
     lines += ["", "spp: samples per pixel taken (an adaptive method's mean over the pixels). A method's first "
               "render in a process follows an untimed warm-up render; its times are in results.csv "
-              "(warm_up, warm_up_compile).", "",
-              "## Fitted log-log slopes (least squares over the sweep)", "",
+              "(warm_up, warm_up_compile)."]
+    if len(timed) < len(rows):
+        lines += ["", f"{_SHORT} {len(rows) - len(timed)} of {len(rows)} points took under {floor}: too short to "
+                  "time reliably (timer resolution, scheduling and fixed per-launch costs weigh as much as the "
+                  "work); the time slopes and the rankings below leave them out"
+                  + ("." if timed else ", which leaves nothing to rank: render more pixels or samples "
+                     "(e.g. -D res=...) to compare times.")]
+    lines += ["", "## Fitted log-log slopes (least squares over the sweep)", "",
               "| method | MSE vs spp | MSE vs time |", "|---|---:|---:|"]
     for method, s in fitted.items():
         if _sweeps_spp(method):
-            lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {s['mse_vs_time']:.2f} |")
+            by_time = f"{s['mse_vs_time']:.2f}" if math.isfinite(s["mse_vs_time"]) or len(timed) == len(rows) \
+                else f"– {_SHORT}"
+            lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {by_time} |")
         else:
             lines.append(f"| {method} | – | – |")
     if not all(_sweeps_spp(method) for method in fitted):
         lines += ["", "–: the method sweeps another parameter than spp; a fit over that sweep is not "
                   "a convergence rate."]
-    lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", "",
-              "| budget (s) | ranking (MSE) |", "|---:|---|"]
-    for budget, ranked in equal_time_ranking(rows):
-        text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
-        lines.append(f"| {budget:.3f} | {text} |")
-    anchors = [r for r in rows if r["method"] == rows[0]["method"]] if rows else []
-    lines += ["", "## Equal-error ranking (fastest render reaching each RMSE)", "",
-              f"Budgets: the RMSE of each {anchors[0]['method'] if anchors else ''} point; times relative to "
-              "that point's.", "",
-              "| RMSE budget (from) | ranking (time) |", "|---|---|"]
-    for anchor, (budget, ranked) in zip(anchors, equal_error_ranking(rows, [a["rmse"] for a in anchors])):
-        text = ", ".join(f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s, {t / anchor['time']:.2f}x)"
-                         if anchor["time"] > 0 else f"{i + 1}. {m} {setting_label(m, v)} ({t:.3f} s)"
-                         for i, (m, v, t) in enumerate(ranked))
-        lines.append(f"| {budget:.5f} ({anchor['method']} {setting_label(anchor['method'], anchor['value'])}, "
-                     f"{anchor['time']:.3f} s) | {text} |")
+    if len(timed) < len(rows):
+        lines += ["", f"MSE vs time: fitted over the points of {floor} or more; – {_SHORT}: fewer than two such "
+                  "points."]
+    lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", ""]
+    if timed:
+        lines += ["| budget | ranking (MSE) |", "|---:|---|"]
+        for budget, ranked in equal_time_ranking(timed):
+            text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
+            lines.append(f"| {format_time(budget)} | {text} |")
+    else:
+        lines.append(f"Left out: every render took under {floor} ({_SHORT} above).")
+    anchors = [r for r in timed if r["method"] == timed[0]["method"]] if timed else []
+    lines += ["", "## Equal-error ranking (fastest render reaching each RMSE)", ""]
+    if anchors:
+        lines += [f"Budgets: the RMSE of each {anchors[0]['method']} point; times relative to that point's.", "",
+                  "| RMSE budget (from) | ranking (time) |", "|---|---|"]
+        for anchor, (budget, ranked) in zip(anchors, equal_error_ranking(timed, [a["rmse"] for a in anchors])):
+            text = ", ".join(f"{i + 1}. {m} {setting_label(m, v)} ({format_time(t)}, {t / anchor['time']:.2f}x)"
+                             for i, (m, v, t) in enumerate(ranked))
+            lines.append(f"| {budget:.5f} ({anchor['method']} {setting_label(anchor['method'], anchor['value'])}, "
+                         f"{format_time(anchor['time'])}) | {text} |")
+    else:
+        lines.append(f"Left out: every render took under {floor} ({_SHORT} above).")
     atomic_write(paths["md"], lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
 
     _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
@@ -208,7 +290,9 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
         ok = (x > 0) & (y > 0)
         xs_all += list(x[ok])
         ys_all += list(y[ok])
-        label = f"{method} (slope {fitted[method][slope_name]:.2f})" if spp_sweep else \
+        slope = fitted[method][slope_name]
+        label = f"{method} (slope {slope:.2f})" if spp_sweep and math.isfinite(slope) else \
+            f"{method} (slope –)" if spp_sweep else \
             f"{method} ({sweep_parameter(method)} labelled)"
         ax.errorbar(x[ok], y[ok], yerr=err[ok], marker="o", capsize=2, label=label)
         if not spp_sweep:  # a threshold sweep: say which point is which
@@ -220,6 +304,9 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
         for slope, style in ((-1, ":"), (-1.5, "--"), (-2, "-.")):
             ax.plot([x0, x1], [y0, y0 * (x1 / x0) ** slope], style, color="grey", linewidth=1,
                     label=f"slope {slope:g}")
+    if x_name == "time" and xs_all and min(xs_all) < TIMING_FLOOR:
+        ax.axvspan(min(xs_all) / 2, TIMING_FLOOR, color="grey", alpha=0.15, linewidth=0,
+                   label=f"under {format_time(TIMING_FLOOR)}: not timed reliably")
     if xs_all:
         ax.set_xscale("log")
         ax.set_yscale("log")

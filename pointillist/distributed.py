@@ -317,7 +317,7 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
         Re-runs of a task that raises (a task whose worker dies is re-run by
         the scheduler regardless, up to ``allowed-failures``).
     progress : bool
-        Show a tqdm progress bar.
+        Show a tqdm progress bar (on a terminal only: not in a log).
     stats : dict, optional
         Filled with ``cached`` and ``computed`` counts.
 
@@ -345,8 +345,8 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     todo = [i for i, r in enumerate(results) if r is _MISSING]
     if stats is not None:
         stats.update(cached=len(tasks) - len(todo), computed=len(todo))
-    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc, disable=not progress,
-               unit="task", leave=False)
+    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc,
+               disable=None if progress else True, unit="task", leave=False)  # None: a terminal only
     try:
         if client is None:
             for i in todo:

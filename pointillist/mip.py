@@ -1,6 +1,14 @@
 """Maximum (minimum, average) intensity projections of volumes: views, framing, frames.
 
-* :func:`view_axes` gives the camera's ``(right, up, forward)`` for a named view
+Views are anatomical: the volume is posed in patient space (LPS: x = patient's left,
+y = posterior, z = superior; :mod:`pointillist.imaging.orientation`) by its
+voxel-to-patient directions, and the named views follow the radiological convention of
+radiology viewers (3D Slicer, ITK-SNAP, OsiriX/Horos): axial seen from the feet (patient's
+right on the image's left, anterior up), coronal from the front (right on the left,
+superior up), sagittal from the patient's left (anterior on the left, superior up).
+``neurological`` mirrors left and right.
+
+* :func:`view_axes` gives the camera's ``(right, up, forward)`` in LPS for a named view
   (:data:`NAMED_VIEWS`) or an azimuth/elevation; :func:`view_frame` fits the
   volume's box into the image (or, ``native``, one pixel per voxel column).
 * :func:`project_volume` renders one raw projection with the ``mip`` integrator
@@ -28,11 +36,14 @@ import numpy as np
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
-__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "normalised_volume", "project_volume", "mip_frame_task",
-           "project_frames", "MipResult", "render_mip", "PLAIN_EXTENT", "NORMAL_EXTENT"]
+__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "patient_view", "normalised_volume", "project_volume",
+           "mip_frame_task", "project_frames", "MipResult", "render_mip", "PLAIN_EXTENT", "NORMAL_EXTENT"]
 
 
-#: Named views: (right, up, forward) unit vectors in the volume's (x, y, z) axes.
+#: Named views: (right, up, forward) unit vectors in patient LPS (x = left, y = posterior,
+#: z = superior), radiological: axial from the feet (image right = patient's left, up =
+#: anterior), coronal from the front (right = left, up = superior), sagittal from the
+#: patient's left (right = posterior, up = superior).
 NAMED_VIEWS = {
     "axial": ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
     "coronal": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
@@ -42,7 +53,9 @@ NAMED_VIEWS = {
 def view_axes(view: str | None = None, azimuth: float = 0.0, elevation: float = 0.0):
     """Camera ``(right, up, forward)`` unit vectors (numpy) for a named view or azimuth/elevation.
 
-    forward = (sin A cos E, cos A cos E, -sin E); right = forward x z normalised
+    In patient LPS: forward = (sin A cos E, cos A cos E, -sin E) (azimuth 0, elevation 0 looks
+    from the front along +y, posterior: coronal; azimuth turns about the patient's superior
+    axis, elevation raises the camera towards the head); right = forward x z normalised
     (``(cos A, -sin A, 0)`` when looking straight along z); up = right x forward.
     Directions within 1e-12 of an axis are snapped to it.
     """
@@ -67,10 +80,15 @@ def view_axes(view: str | None = None, azimuth: float = 0.0, elevation: float = 
 def view_frame(extent, axes, *, size=(512, 512), native: bool = False, counts=None, spacing=None):
     """Image size and the half-width/half-height (world units) of the orthographic view rectangle.
 
-    ``size`` (W, H): the box's projection is fitted inside with square pixels.
-    ``native``: axis-aligned views only; the image has one pixel per voxel column
-    (W, H = voxel counts across the view) and the rectangle is the box's face, so
-    each pixel's ray passes through a voxel column centre.
+    ``axes`` are the view's (right, up, forward) in the volume's voxel axes. ``size``
+    (W, H): the box's projection is fitted inside with square pixels. ``native``: a
+    view along voxel axes has one pixel per voxel column (W, H = voxel counts across
+    the view) and the rectangle is the box's face, so each pixel's ray passes through a
+    voxel column centre. A view not along voxel axes (an anatomical view of an oblique
+    acquisition) with ``native`` and ``spacing``: the voxel axis closest to the viewing
+    direction is the through-plane one; the other two (the in-plane voxel axes), matched
+    to the image's right and up, give the pixel width and height, and the image covers the
+    box's projection (rounded up to whole pixels).
     """
     right, up, forward = axes
     extent = np.asarray(extent, dtype=np.float64)
@@ -79,11 +97,20 @@ def view_frame(extent, axes, *, size=(512, 512), native: bool = False, counts=No
     half_h = float(np.abs(corners @ up).max())
     if native:
         axis_r, axis_u = np.flatnonzero(np.abs(right) == 1.0), np.flatnonzero(np.abs(up) == 1.0)
-        if len(axis_r) != 1 or len(axis_u) != 1 or np.count_nonzero(forward) != 1:
+        if len(axis_r) == 1 and len(axis_u) == 1 and np.count_nonzero(forward) == 1:
+            width, height = int(counts[axis_r[0]]), int(counts[axis_u[0]])
+            return (width, height), half_w, half_h
+        if spacing is None:
             raise ValueError("native-size: needs an axis-aligned view (axial, coronal, sagittal or "
                              "azimuth/elevation multiples of 90 degrees)")
-        width, height = int(counts[axis_r[0]]), int(counts[axis_u[0]])
-        return (width, height), half_w, half_h
+        through = int(np.argmax(np.abs(forward)))
+        in_plane = [k for k in range(3) if k != through]
+        if abs(right[in_plane[0]]) + abs(up[in_plane[1]]) < abs(right[in_plane[1]]) + abs(up[in_plane[0]]):
+            in_plane.reverse()
+        pixel_w, pixel_h = float(spacing[in_plane[0]]), float(spacing[in_plane[1]])
+        width = max(1, math.ceil(2 * half_w / pixel_w - 1e-6))
+        height = max(1, math.ceil(2 * half_h / pixel_h - 1e-6))
+        return (width, height), width * pixel_w / 2, height * pixel_h / 2
     width, height = size
     per_pixel = max(2 * half_w / width, 2 * half_h / height)
     return (width, height), width * per_pixel / 2, height * per_pixel / 2
@@ -113,6 +140,34 @@ def _sensor_dict(mi, extent, axes, image_size, half_w, half_h, perspective: floa
     sensor["sampler"] = {"type": "independent", "sample_count": 1}
     return sensor
 
+def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float = 0.0, *,
+                 neurological: bool = False) -> dict[str, Any]:
+    """The displayed image's patient axes: LPS vectors and radiology letters of its edges.
+
+    Returns ``{"right", "up", "forward"}`` (LPS unit vectors of the image's right, up and
+    viewing direction; ``neurological`` mirrors right) and ``"labels"``
+    (:func:`pointillist.imaging.orientation.view_labels`: letters for each edge).
+
+    Examples
+    --------
+    >>> from pointillist.mip import patient_view
+    >>> patient_view("axial")["labels"]
+    {'left': 'R', 'right': 'L', 'top': 'A', 'bottom': 'P'}
+    >>> patient_view("axial", neurological=True)["labels"]["left"]
+    'L'
+    """
+    from pointillist.imaging.orientation import view_labels
+
+    right, up, forward = view_axes(view, azimuth, elevation)
+    if neurological:
+        right = 0.0 - right  # (0.0 - 0.0 is +0.0: no "-0" in headers)
+    return {"right": right, "up": up, "forward": forward, "labels": view_labels(right, up)}
+
+
+def _along_patient_axes(axes) -> bool:
+    return all(np.count_nonzero(a) == 1 for a in axes)
+
+
 #: Volumes whose box's largest side (world units) lies in [lo, hi) are projected as they are; others
 #: are scaled by a power of two (exactly) into :data:`NORMAL_EXTENT` (:func:`normalised_volume`).
 PLAIN_EXTENT = (1.0, 2.0**16)
@@ -136,26 +191,30 @@ def normalised_volume(volume):
     >>> normalised_volume(Volume(np.zeros((2, 2, 4)), (1e-10, 1e-10, 2e-10))).spacing
     (27.4877906944, 27.4877906944, 54.9755813888)
     """
-    from pointillist.imaging.volumes import Volume
-
     largest = max(volume.extent)
     if PLAIN_EXTENT[0] <= largest < PLAIN_EXTENT[1]:
         return volume
     k = math.floor(math.log2(NORMAL_EXTENT[0])) - math.floor(math.log2(largest))
-    return Volume(volume.data, tuple(math.ldexp(s, k) for s in volume.spacing), volume.origin, volume.metadata)
+    return volume.respaced(tuple(math.ldexp(s, k) for s in volume.spacing))  # directions kept
 
 
 def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, elevation: float = 0.0,
                    size=(512, 512), native: bool = False, mode: str = "mip",
                    interpolation: str = "trilinear", step: float = 0.5, perspective: float | None = None,
-                   precision: str = "auto", background: float | None = None, integrator=None):
+                   precision: str = "auto", background: float | None = None, neurological: bool = False,
+                   integrator=None):
     """Render the raw projection ``(H, W)`` (numpy float32) of a volume from a view.
 
-    ``volume`` is a :class:`pointillist.imaging.volumes.Volume` or a (Z, Y, X) array; a very
-    small or large one is projected in a rescaled frame (:func:`normalised_volume`), so that
-    scaling the spacing uniformly does not change the projection. Pass ``integrator`` (a ``mip``
-    integrator holding the volume) to reuse its texture across views (the views are then framed
-    on the volume it holds). Returns ``(image, integrator)``.
+    ``volume`` is a :class:`pointillist.imaging.volumes.Volume` or a (Z, Y, X) array.
+    The view is anatomical (see the module's description): the camera's axes are in
+    patient LPS and the integrator poses the volume by its directions. A view that is
+    along voxel axes after that pose (any axis-aligned acquisition, whatever its voxel
+    order) keeps the one-pixel-per-voxel-column ``native`` framing and the integrator's
+    column fast path. ``neurological`` mirrors the image left-right. Pass ``integrator``
+    (a ``mip`` integrator holding the volume) to reuse its texture across views (the views
+    are then framed on the volume it holds). A very small or large volume is projected in a
+    rescaled frame (:func:`normalised_volume`), so that scaling the spacing uniformly does not
+    change the projection. Returns ``(image, integrator)``.
     """
     import pointillist
 
@@ -175,14 +234,25 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
         integrator = mi.load_dict(props)
         integrator.set_volume(normalised_volume(volume))
     volume = integrator.volume
-    axes = view_axes(view, azimuth, elevation)
-    image_size, half_w, half_h = view_frame(volume.extent, axes, size=size, native=native,
-                                            counts=volume.shape_xyz)
+    axes = view_axes(view, azimuth, elevation)  # patient LPS
+    if native and not _along_patient_axes(axes):
+        raise ValueError("native-size: needs an axis-aligned view along the patient's axes (axial, coronal, "
+                         "sagittal or azimuth/elevation multiples of 90 degrees)")
+    directions = volume.directions if getattr(integrator, "patient_space", True) else np.eye(3)
+    if np.all(np.isin(directions, (-1.0, 0.0, 1.0))):
+        voxel_axes = tuple(directions.T @ a for a in axes)  # exact: a signed permutation
+    else:
+        inverse = np.linalg.inv(directions)
+        voxel_axes = tuple(np.where(np.abs(v := inverse @ a) < 1e-12, 0.0, v) for a in axes)
+    image_size, half_w, half_h = view_frame(volume.extent, voxel_axes, size=size, native=native,
+                                            counts=volume.shape_xyz, spacing=volume.spacing)
     sensor = mi.load_dict(_sensor_dict(mi, np.asarray(volume.extent), axes, image_size, half_w, half_h,
                                        perspective))
     scene = mi.load_dict({"type": "scene"})
-    image = integrator.project(scene, sensor)
-    return np.array(image), integrator
+    image = np.array(integrator.project(scene, sensor))
+    if neurological:
+        image = np.ascontiguousarray(image[:, ::-1])
+    return image, integrator
 
 
 # --------------------------------------------------------------------------- turntable frames as tasks
@@ -192,7 +262,8 @@ _VOLUMES: OrderedDict = OrderedDict()
 def mip_frame_task(spec: dict) -> dict:
     """Project one frame of a volume in this process (a worker); picklable.
 
-    ``spec``: ``volume`` (path), ``spacing`` (or None), ``view`` (keyword
+    ``spec``: ``volume`` (path), ``spacing`` (or None), ``load`` (``frame``/``series`` of
+    :func:`~pointillist.imaging.volumes.load_volume`, optional), ``view`` (keyword
     arguments of the view: ``view``/``azimuth``/``elevation``) and ``options``
     (the other keyword arguments of
     :func:`project_volume`). The volume and its
@@ -209,11 +280,12 @@ def mip_frame_task(spec: dict) -> dict:
     except OSError:
         raise UsageError(f"volume: no such file or folder: {path}") from None
     spacing = tuple(spec["spacing"]) if spec.get("spacing") else None
-    key = (path, stamp, spacing, tuple(sorted(spec["options"].items())))
+    load = dict(spec.get("load") or {})
+    key = (path, stamp, spacing, tuple(sorted(load.items())), tuple(sorted(spec["options"].items())))
     entry = _VOLUMES.get(key)
     if entry is None:
         _VOLUMES.clear()  # one volume per process: they can be large
-        entry = _VOLUMES[key] = {"volume": load_volume(path, spacing=list(spacing) if spacing else None),
+        entry = _VOLUMES[key] = {"volume": load_volume(path, spacing=list(spacing) if spacing else None, **load),
                                  "integrator": None}
     start = time.perf_counter()
     image, entry["integrator"] = project_volume(entry["volume"], **spec["view"], **spec["options"],
@@ -222,8 +294,8 @@ def mip_frame_task(spec: dict) -> dict:
             "texture": entry["integrator"].texture_info(), "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
 def project_frames(volume: str | os.PathLike, views: Sequence[dict], options: dict, *, spacing=None,
-                   workers: int | None = None, scheduler: str | None = None, retries: int = DEFAULT_RETRIES,
-                   progress: bool = True) -> list[dict]:
+                   load: dict | None = None, workers: int | None = None, scheduler: str | None = None,
+                   retries: int = DEFAULT_RETRIES, progress: bool = True) -> list[dict]:
     """Project every view of a volume (turntable frames) as tasks; results in view order.
 
     Runs on a local cluster of ``workers`` processes or the cluster at
@@ -231,7 +303,7 @@ def project_frames(volume: str | os.PathLike, views: Sequence[dict], options: di
     :func:`mip_frame_task` for what each result holds.
     """
     specs = [{"volume": str(Path(volume).resolve()), "spacing": list(spacing) if spacing else None,
-              "view": dict(view), "options": dict(options)} for view in views]
+              "load": dict(load or {}), "view": dict(view), "options": dict(options)} for view in views]
     keys = [json_key(s) for s in specs]
     with open_client(workers, scheduler) as client:
         return run_tasks(mip_frame_task, specs, client=client, keys=keys, retries=retries, progress=progress,
@@ -251,6 +323,8 @@ class MipResult:
     load_seconds: float
     project_seconds: float
     notes: list[str] = field(default_factory=list)
+    #: one-line warnings (e.g. an orientation the file lacked and what was assumed)
+    warnings: list[str] = field(default_factory=list)
 
 
 def _frame_views(view: str | None, azimuth: float | None, elevation: float | None,
@@ -277,12 +351,21 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
                window: str | None = None, colormap: str = "grey", step: float = 0.5,
                spacing: Sequence[float] | None = None, perspective: float | None = None,
                background: float | None = None, precision: str = "auto", turntable: int | None = None,
-               workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> MipResult:
+               neurological: bool = False, labels: bool = True, frame: int | None = None,
+               series: str | None = None, workers: int | None = None, scheduler: str | None = None,
+               progress: bool = True) -> MipResult:
     """Project a volume file and write the image(s): ``pointillist mip``.
 
     ``output`` is a ``.png`` (windowed and colour-mapped; ``window`` is ``"L,W"``
     or a preset of :data:`pointillist.imaging.window.WINDOW_PRESETS`, default the
-    first frame's value range) or an ``.exr`` (raw projected values, one channel).
+    first frame's value range; with ``labels`` the patient-direction letters at the
+    middle of each edge) or an ``.exr`` (raw projected values, one channel; its header
+    records the view's patient axes: ``patient_frame`` LPS, ``view_right``/``view_up``/
+    ``view_forward`` vectors, ``image_left``/``image_right``/``image_top``/``image_bottom``
+    letters and ``display`` radiological or neurological). Views are anatomical and
+    radiological (see the module's description); ``neurological`` mirrors left and
+    right. ``frame`` picks a volume of a 4-D input, ``series`` a DICOM series of a folder
+    (:func:`~pointillist.imaging.volumes.load_volume`).
     ``turntable`` N writes N frames ``OUT_000.png ...`` turning about z (and
     ``OUT.gif`` when imageio is installed); ``workers``/``scheduler`` project the
     frames as Dask tasks. Other arguments as :func:`project_volume`.
@@ -313,10 +396,15 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     from pointillist.imaging.volumes import load_volume
     from pointillist.imaging.window import colormap_lut, parse_window
 
+    import warnings
+
     display = parse_window(window) if window else None
     lut = colormap_lut(colormap)
     start = time.perf_counter()
-    volume = load_volume(volume_path, spacing=list(spacing) if spacing else None)
+    load = {"frame": frame, "series": series}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        volume = load_volume(volume_path, spacing=list(spacing) if spacing else None, **load)
     load_s = time.perf_counter() - start
     views = _frame_views(view, azimuth, elevation, turntable)
     names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
@@ -324,13 +412,14 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     for name in names:
         check_output_path(name, [volume_path], name="--output")
     options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
-                   perspective=perspective, precision=precision, background=background)
+                   perspective=perspective, precision=precision, background=background, neurological=neurological)
     integrator = None
     frames = []
     project_s = 0.0
     remote = None
     if workers or scheduler:  # every frame a task
-        remote = project_frames(volume_path, views, options, spacing=spacing, workers=workers, scheduler=scheduler)
+        remote = project_frames(volume_path, views, options, spacing=spacing, load=load, workers=workers,
+                                scheduler=scheduler)
         project_s = sum(r["seconds"] for r in remote)
     for k, (frame_view, name) in enumerate(tqdm(list(zip(views, names)), desc="mip", unit="frame",
                                                 disable=len(names) == 1 or not progress)):
@@ -345,7 +434,8 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
             lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
             display = ((lo + hi) / 2, hi - lo if hi > lo else 1.0)
         frames.append(_write_frame(name, image, volume, volume_path, display, lut, frame_view, mode=mode,
-                                   interpolation=interpolation, step=step))
+                                   interpolation=interpolation, step=step, neurological=neurological,
+                                   labels=labels))
     gif, notes = None, []
     if turntable and suffix == ".png":
         try:
@@ -360,22 +450,37 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
             atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
     texture = integrator.texture_info() if remote is None else remote[0]["texture"]
     return MipResult(outputs=names, gif=gif, volume=volume, texture=texture, window=display,
-                     load_seconds=load_s, project_seconds=project_s, notes=notes)
+                     load_seconds=load_s, project_seconds=project_s, notes=notes,
+                     warnings=[str(w.message) for w in caught])
 
 
 def _write_frame(path: Path, image: np.ndarray, volume, volume_path, window, lut, view, *, mode: str,
-                 interpolation: str, step: float) -> np.ndarray | None:
-    """Write one frame: raw values to EXR, or windowed display RGB to PNG (returned as 8-bit)."""
+                 interpolation: str, step: float, neurological: bool = False,
+                 labels: bool = True) -> np.ndarray | None:
+    """Write one frame: raw values to EXR (patient axes in the header), or windowed display RGB
+    to PNG with orientation letters (returned as 8-bit)."""
     from pointillist.imaging.io import to_8bit, write_exr, write_png
 
+    patient = patient_view(view["view"], view.get("azimuth", 0.0), view.get("elevation", 0.0),
+                           neurological=neurological)
     if path.suffix.lower() == ".exr":
         meta = {"mode": mode, "interpolation": interpolation, "step": float(step),
                 "volume": str(volume_path), "spacing": ",".join(f"{s:g}" for s in volume.spacing),
-                "view": view["view"] or f"azimuth={view.get('azimuth', 0):g},elevation={view.get('elevation', 0):g}"}
+                "view": view["view"] or f"azimuth={view.get('azimuth', 0):g},elevation={view.get('elevation', 0):g}",
+                "patient_frame": "LPS", "voxel_axes": volume.axis_codes if volume.oriented else "none (taken as LPS)",
+                "display": "neurological" if neurological else "radiological"}
+        for key in ("right", "up", "forward"):
+            meta[f"view_{key}"] = ",".join(f"{float(c):.9g}" for c in patient[key])
+        for edge, letters in patient["labels"].items():
+            meta[f"image_{edge}"] = letters
         write_exr(path, image.astype(np.float32), meta, inputs=[volume_path])
         return None
     from pointillist.imaging.window import window_image
 
-    pixels = window_image(image, *window, lut)
-    write_png(path, pixels, srgb=False, max_value=1.0, inputs=[volume_path])
-    return to_8bit(pixels, srgb=False)
+    pixels = to_8bit(window_image(image, *window, lut), srgb=False)
+    if labels:
+        from pointillist.imaging.orientation import draw_labels
+
+        pixels = draw_labels(pixels, patient["labels"])
+    write_png(path, pixels, srgb=False, max_value=255.0, inputs=[volume_path])
+    return pixels

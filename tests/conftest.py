@@ -1,12 +1,14 @@
-"""Shared fixtures: the Mitsuba variant with pointillist's plugins, and a CLI runner."""
+"""Shared fixtures: the Mitsuba variant with pointillist's plugins, a CLI runner, a per-test RNG."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,3 +42,28 @@ def run_cli(*args: str, cwd: str | os.PathLike | None = None, env: dict | None =
 def cli():
     """The :func:`run_cli` function (subprocess CLI runner)."""
     return run_cli
+
+
+@pytest.fixture
+def rng(request) -> np.random.Generator:
+    """A generator seeded from the test's node id: the same numbers whether the test runs alone,
+    in a file or in the whole suite, and in any order (never a module-level generator)."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+def _aligned_copy(array, alignment: int = 64) -> np.ndarray:
+    """A C-contiguous copy of ``array`` whose data starts at a multiple of ``alignment`` bytes."""
+    array = np.asarray(array)
+    buffer = np.empty(array.nbytes + alignment, np.uint8)
+    start = (-buffer.ctypes.data) % alignment
+    copy = buffer[start:start + array.nbytes].view(array.dtype).reshape(array.shape)
+    copy[...] = array
+    return copy
+
+
+@pytest.fixture
+def aligned():
+    """Copy an array to 64-byte aligned memory. Dr.Jit compiles another variant of a kernel that
+    reads a caller's numpy buffer in place when the buffer is 64-byte aligned (measured: the hash
+    follows the alignment, not the size), so kernel-hash "no recompilation" checks use aligned inputs."""
+    return _aligned_copy

@@ -8,6 +8,7 @@ hand or rendered independently by Mitsuba on a finer film.
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 from pathlib import Path
 
 import numpy as np
@@ -209,8 +210,7 @@ def test_determinism_for_a_fixed_seed(mi):
 def test_works_with_nested_integrators(mi, nested):
     from pointillist import plugins
 
-    if nested not in plugins.registered() and nested == "whitted":
-        pytest.skip("whitted integrator not present")
+    assert nested in ("path", "direct") or nested in plugins.registered()  # ours must be registered
     scene = _default_scene(mi, "path", res=20)
     integrator = mi.load_dict(_adaptive(nested, threshold=20.0, max_depth=2))
     image = np.asarray(mi.render(scene, integrator=integrator, seed=1))
@@ -320,6 +320,42 @@ def test_variance_criterion_stops_flat_pixels_and_refines_edges(mi):
     truth = 0.2 * f + 1.0 * (1 - f)
     assert np.abs(image[:, 2, 0] - truth).max() < 0.1  # 128 samples: standard error ~0.03
     assert scene.integrator().stats["rounds"] >= 2
+
+
+def _variance_rule_count(values, spp, max_error, p_value, factor):
+    """The SPEC's stopping rule replayed in float64: rounds of the same ``spp`` luminance values
+    (a grid sampler puts every round's samples at the same cell centres) until
+    ``z sqrt(var / n) <= max_error |mean|`` (z = the normal quantile of 1 - p/2, var with n - 1)
+    or ``factor * spp`` samples."""
+    z = NormalDist().inv_cdf(1 - p_value / 2)
+    n = 0
+    while True:
+        n += spp
+        samples = np.tile(values, n // spp)
+        if z * math.sqrt(samples.var(ddof=1) / n) <= max_error * abs(samples.mean()) or n + spp > factor * spp:
+            return n
+
+
+@pytest.mark.parametrize("p_value, max_error, factor, expected", [
+    # The edge pixel's 16 grid samples: 12 at 0.2, 4 at 1.0 (mean 0.4, sd 0.3464 sqrt(n/(n-1))),
+    # so the rule stops at the first n = 16 k with n - 1 >= (z 0.8660 / max_error)^2 =: T.
+    (0.05, 0.10010, 64, 304),  # z = 1.960, T = 287.5: the n - 1 matters (with n: 288)
+    (0.2, 0.11357, 64, 112),   # z = 1.282, T = 95.5 (with n: 96)
+    (0.01, 0.2, 64, 128),      # z = 2.576, T = 124.4
+    (0.05, 0.05, 20, 320),     # T = 1152: the cap of 20 x 16 samples comes first
+])
+def test_variance_criterion_sample_count_follows_the_rule(mi, p_value, max_error, factor, expected):
+    spp = 16
+    scene = _edge_scene(mi, _adaptive(criterion="variance", max_error=max_error, p_value=p_value,
+                                      max_sample_factor=factor),
+                        width=5, height=3, left=0.2, right=1.0, sampler={"type": "grid", "sample_count": spp})
+    image, count = _render(mi, scene)
+    # The grid's 4 x 4 cell centres of pixel 2 sit at x = 0.125 .. 0.875; the edge at 0.81: 12 left.
+    values = np.array([0.2] * 12 + [1.0] * 4)
+    assert _variance_rule_count(values, spp, max_error, p_value, factor) == expected
+    np.testing.assert_array_equal(count[:, 2], [expected] * 3)
+    np.testing.assert_array_equal(np.delete(count, 2, axis=1), spp)  # flat pixels: zero variance
+    np.testing.assert_allclose(image[:, 2, 0], 0.4, rtol=1e-6)
 
 
 def test_variance_criterion_black_pixels_stop(mi):

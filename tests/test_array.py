@@ -13,19 +13,18 @@ from drjit.llvm import TensorXf
 
 from pointillist.imaging import as_tensor, colour, dither, filters, resample, tone
 
-RNG = np.random.default_rng(0)
 
 
-def _rgb():
-    return RNG.random((16, 17, 3)).astype(np.float32)
+def _rgb(rng):
+    return rng.random((16, 17, 3)).astype(np.float32)
 
 
-def _grey():
-    return (RNG.random((16, 17)) * 255).astype(np.float32)
+def _grey(rng):
+    return (rng.random((16, 17)) * 255).astype(np.float32)
 
 
-def _u8():
-    return (RNG.random((16, 17)) * 255).astype(np.uint8)
+def _u8(rng):
+    return (rng.random((16, 17)) * 255).astype(np.uint8)
 
 
 OPERATIONS = {
@@ -66,11 +65,11 @@ OPERATIONS = {
 
 
 @pytest.mark.parametrize("name", OPERATIONS)
-def test_result_does_not_change_when_the_numpy_input_does(name):
+def test_result_does_not_change_when_the_numpy_input_does(rng, name):
     # as_tensor shares numpy memory with Dr.Jit; a lazy result must not read the caller's array
     # after the call returns.
     function, make = OPERATIONS[name]
-    image = make()
+    image = make(rng)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         expected = np.array(function(image.copy()))

@@ -283,7 +283,7 @@ def test_distributed_equals_serial(mi, client):
     serial = run_tasks(render_task, tasks, progress=False)
     for r, s in zip(remote, serial):
         assert int(r.worker.rsplit(":", 1)[1]) != os.getpid()  # rendered in a worker process
-        assert r.timing["total"] > 0 and r.timing["execute"] >= 0  # timed on the worker
+        assert r.timing["total"] > 0  # timed on the worker
         np.testing.assert_allclose(r.image, s.image, rtol=1e-5, atol=1e-6)
     # Tiled on the cluster equals tiled in process (same seeds).
     tiled_remote = render_tiled(DEFAULT, {"res": "16"}, tiles=(2, 2), spp=8, seed=3, client=client, progress=False)
@@ -387,6 +387,7 @@ def test_render_cli_bad_distributed_options(cli, tmp_path, argv, message):
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow  # ~25 s: a compare sweep twice, serial and on a cluster
 def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
     """`compare --workers 2` renders each (sampler, spp, seed) as a task: same renders and errors as serial."""
     import csv

@@ -60,6 +60,7 @@ def test_intensity_thresholds_are_the_smallest_float32_meeting_the_rule(name):
     assert np.all((thresholds > 0) & (thresholds < 255))
 
 
+@pytest.mark.slow  # ~15 s: every value at every position of a 64 x 64 mask
 @pytest.mark.parametrize("name", list(TEMPLATES))
 def test_every_8bit_value_at_every_template_position(name):
     template = TEMPLATES[name]
@@ -163,7 +164,7 @@ def test_float32_divmod_is_exact_below_2_to_24():
         assert np.array_equal(np.asarray(r), a % divisor), divisor
 
 
-def test_one_kernel_per_call_and_no_recompilation_across_sizes():
+def test_one_kernel_per_call_and_no_recompilation_across_sizes(aligned):
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         for shape in ((40, 64), (41, 77), (40, 64, 3)):
@@ -177,13 +178,15 @@ def test_one_kernel_per_call_and_no_recompilation_across_sizes():
                 launches = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
                 assert len(launches) == 1
         # Same structure, other sizes: the same kernel (cache hit), sizes are not baked in.
-        dr.eval(ordered(np.zeros((33, 96), np.float32)))
         dr.kernel_history()
+        dr.eval(ordered(aligned(np.zeros((33, 96), np.float32))))
+        compiled = {e["hash"] for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT}
         for shape in ((35, 96), (17, 160), (5, 1000)):
             image = np.random.default_rng(1).integers(0, 256, shape).astype(np.float32)
-            dr.eval(ordered(image))
+            dr.eval(ordered(aligned(image)))
         launches = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
-        assert len(launches) == 3 and all(e["cache_hit"] for e in launches)
+        # kernel hashes, not cache_hit (which also counts kernels loaded from ~/.drjit)
+        assert len(launches) == 3 and {e["hash"] for e in launches} <= compiled
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
 

@@ -10,7 +10,6 @@ import scipy.ndimage as ndi
 import pointillist.imaging  # noqa: F401  (libLLVM first)
 from pointillist.imaging import filters as F
 
-RNG = np.random.default_rng(6)
 SHAPES = [(1, 1), (2, 2), (5, 5), (7, 10), (6, 4, 3)]
 #: our padded border modes -> scipy.ndimage mode, OpenCV border type (None: OpenCV has none for filter2D)
 MODES = {"clamp": ("nearest", cv2.BORDER_REPLICATE), "reflect": ("reflect", cv2.BORDER_REFLECT),
@@ -18,8 +17,8 @@ MODES = {"clamp": ("nearest", cv2.BORDER_REPLICATE), "reflect": ("reflect", cv2.
          "constant": ("constant", cv2.BORDER_CONSTANT)}
 
 
-def image(shape, scale=255.0):
-    return (RNG.random(shape) * scale).astype(np.float32)
+def image(rng, shape, scale=255.0):
+    return (rng.random(shape) * scale).astype(np.float32)
 
 
 def kernel_for(image_array, kernel):
@@ -85,10 +84,10 @@ def test_negative_results_made_positive_by_absolute_value():
 # --- against scipy.ndimage and OpenCV ---------------------------------------------------------
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("border", list(MODES))
-def test_padded_borders_match_scipy(shape, border):
-    img = image(shape)
-    for kernel in (F.GAUSSIAN_3, F.SOBEL_Y, RNG.standard_normal((5, 3)).astype(np.float32),
-                   RNG.standard_normal((1, 7)).astype(np.float32)):
+def test_padded_borders_match_scipy(rng, shape, border):
+    img = image(rng, shape)
+    for kernel in (F.GAUSSIAN_3, F.SOBEL_Y, rng.standard_normal((5, 3)).astype(np.float32),
+                   rng.standard_normal((1, 7)).astype(np.float32)):
         expected = ndi.correlate(img.astype(np.float64), kernel_for(img, kernel).astype(np.float64),
                                  mode=MODES[border][0])
         got = out(F.correlate(img, kernel, border=border))
@@ -96,16 +95,16 @@ def test_padded_borders_match_scipy(shape, border):
 
 
 @pytest.mark.parametrize("border", [b for b, (_, cv) in MODES.items() if cv is not None])
-def test_padded_borders_match_opencv_filter2d(border):
-    img = image((9, 12, 3))
-    kernel = RNG.standard_normal((3, 5)).astype(np.float32)
+def test_padded_borders_match_opencv_filter2d(rng, border):
+    img = image(rng, (9, 12, 3))
+    kernel = rng.standard_normal((3, 5)).astype(np.float32)
     expected = cv2.filter2D(img, -1, kernel, borderType=MODES[border][1])
     np.testing.assert_allclose(out(F.correlate(img, kernel, border=border)), expected, atol=2e-3)
 
 
 @pytest.mark.parametrize("shape", SHAPES)
-def test_zero_keep_crop_interior_matches_scipy(shape):
-    img = image(shape)
+def test_zero_keep_crop_interior_matches_scipy(rng, shape):
+    img = image(rng, shape)
     kernel = F.HIGH_PASS
     ref = ndi.correlate(img, kernel_for(img, kernel), mode="nearest")
     interior = (slice(1, -1), slice(1, -1))
@@ -123,8 +122,8 @@ def test_zero_keep_crop_interior_matches_scipy(shape):
             F.correlate(img, kernel, border="crop")
 
 
-def test_sobel_matches_opencv_and_components():
-    img = image((11, 13))
+def test_sobel_matches_opencv_and_components(rng):
+    img = image(rng, (11, 13))
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
     gy = -cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)  # SPEC's y is up
     mag, ox, oy = F.sobel(img, border="clamp", components=True)
@@ -136,8 +135,8 @@ def test_sobel_matches_opencv_and_components():
     assert zero[0].max() == 0 and zero[-1].max() == 0
 
 
-def test_prewitt_and_laplacian_match_references():
-    img = image((8, 9, 3))
+def test_prewitt_and_laplacian_match_references(rng):
+    img = image(rng, (8, 9, 3))
     px = ndi.correlate(img, F.PREWITT_X[..., None], mode="reflect")
     py = ndi.correlate(img, F.PREWITT_Y[..., None], mode="reflect")
     np.testing.assert_allclose(out(F.prewitt(img, border="reflect")), np.hypot(px, py), rtol=1e-5, atol=1e-3)
@@ -147,16 +146,16 @@ def test_prewitt_and_laplacian_match_references():
 
 @pytest.mark.parametrize("shape", [(1, 1), (2, 2), (6, 7), (9, 8, 3)])
 @pytest.mark.parametrize("border", list(MODES))
-def test_median_matches_scipy(shape, border):
-    img = image(shape)
+def test_median_matches_scipy(rng, shape, border):
+    img = image(rng, shape)
     for size in (3, 5):
         window = (size, size) if img.ndim == 2 else (size, size, 1)
         expected = ndi.median_filter(img, size=window, mode=MODES[border][0])
         np.testing.assert_array_equal(out(F.median(img, size, border=border)), expected)
 
 
-def test_median_matches_opencv_and_7x7():
-    img = image((20, 23))
+def test_median_matches_opencv_and_7x7(rng):
+    img = image(rng, (20, 23))
     for size in (3, 5):
         np.testing.assert_array_equal(out(F.median(img, size)), cv2.medianBlur(img, size))
     np.testing.assert_array_equal(out(F.median(img, 7, border="reflect")),
@@ -277,12 +276,14 @@ def test_bad_arguments():
 
 
 # --- post steps ---------------------------------------------------------------------------------
-def test_post_steps_registered_and_run(tmp_path, cli):
+def test_post_steps_registered_and_run(rng, tmp_path, cli):
+    from PIL import Image
+
     from pointillist.steps import parse_steps
 
     pipeline = parse_steps("sobel;normalize;threshold:level=128;median:5;correlate:gaussian,border=reflect;"
                            "laplacian;zero_crossings;prewitt;resize:3,2,bicubic")
-    img = image((6, 7))
+    img = image(rng, (6, 7))
     current = img
     for spec, kwargs in pipeline:
         current = spec.function(current, **kwargs)
@@ -292,6 +293,11 @@ def test_post_steps_registered_and_run(tmp_path, cli):
     write_png(source, np.tile(np.linspace(0, 255, 16, dtype=np.float32), (12, 1)), srgb=False, max_value=255.0)
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr
+    ramp = np.asarray(Image.open(source).convert("L")).astype(np.float32)
+    expected = out(F.threshold(F.normalize(F.sobel(ramp)), 128))
+    written = np.asarray(Image.open(tmp_path / "edges.png").convert("L")).astype(np.float32)
+    np.testing.assert_array_equal(written, expected)
+    assert 0 < (written == 255).mean() < 1  # edges at the borders only (zero padding), not all
     bad = cli("post", source, "-o", tmp_path / "bad.png", "--steps", "correlate:sobel_z")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
 

@@ -132,3 +132,70 @@ def test_read_image_png(tmp_path):
     image, meta, layers = read_image(tmp_path / "a.png")
     np.testing.assert_array_equal(image, data.astype(np.float32))
     assert meta == {} and layers == {}
+
+
+# ----------------------------------------------------------------------------------------------
+# EXR through other readers and writers: OpenEXR's own API with explicit channel names and
+# Mitsuba's Bitmap, both ways. Every channel holds other values (channel c: 10 c + a ramp), so a
+# swapped channel order cannot go unnoticed.
+
+
+def _asymmetric(channels, height=3, width=5):
+    ramp = np.arange(height * width, dtype=np.float32).reshape(height, width) / 8
+    return np.stack([10.0 * (c + 1) + ramp for c in range(channels)], axis=-1).astype(np.float32)
+
+
+@pytest.mark.parametrize("channels, names", [(3, "RGB"), (4, "RGBA")])
+def test_exr_written_by_us_has_named_channels_for_openexr(tmp_path, channels, names):
+    import OpenEXR
+
+    image = _asymmetric(channels)
+    write_exr(tmp_path / "ours.exr", image, layers={"spp": image[..., 0] * 0 + 7})
+    with OpenEXR.File(str(tmp_path / "ours.exr"), separate_channels=True) as exr:
+        found = {name: np.asarray(channel.pixels) for name, channel in exr.channels().items()}
+    assert sorted(found) == sorted([*names, "spp"])
+    for c, name in enumerate(names):
+        np.testing.assert_array_equal(found[name], image[..., c], err_msg=name)
+    np.testing.assert_array_equal(found["spp"], np.full(image.shape[:2], 7, np.float32))
+
+
+def test_exr_written_by_us_reads_the_same_in_mitsuba(mi, tmp_path):
+    image = _asymmetric(3)
+    write_exr(tmp_path / "ours.exr", image)
+    bitmap = mi.Bitmap(str(tmp_path / "ours.exr"))
+    assert bitmap.pixel_format() == mi.Bitmap.PixelFormat.RGB
+    assert [field.name for field in bitmap.struct_()] == ["R", "G", "B"]
+    np.testing.assert_array_equal(np.asarray(bitmap), image)
+
+
+def test_grey_exr_is_a_y_channel(tmp_path):
+    import OpenEXR
+
+    image = _asymmetric(1)[..., 0]
+    write_exr(tmp_path / "grey.exr", image)
+    with OpenEXR.File(str(tmp_path / "grey.exr"), separate_channels=True) as exr:
+        assert list(exr.channels()) == ["Y"]
+        np.testing.assert_array_equal(exr.channels()["Y"].pixels, image)
+
+
+@pytest.mark.parametrize("names", ["RGB", "RGBA"])
+def test_exr_written_by_openexr_with_explicit_channels_reads_in_our_order(tmp_path, names):
+    import OpenEXR
+
+    image = _asymmetric(len(names))
+    # Channels written one by one, by name, in an order that is neither RGB nor BGR.
+    order = {"RGB": "GBR", "RGBA": "AGBR"}[names]
+    channels = {name: np.ascontiguousarray(image[..., names.index(name)]) for name in order}
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, channels) as exr:
+        exr.write(str(tmp_path / "theirs.exr"))
+    back = read_exr(tmp_path / "theirs.exr").image
+    np.testing.assert_array_equal(back, image)
+
+
+def test_exr_written_by_mitsuba_reads_in_our_order(mi, tmp_path):
+    image = _asymmetric(3)
+    mi.Bitmap(image, pixel_format=mi.Bitmap.PixelFormat.RGB).write(str(tmp_path / "mitsuba.exr"))
+    np.testing.assert_array_equal(read_exr(tmp_path / "mitsuba.exr").image, image)
+    rgba = _asymmetric(4)
+    mi.Bitmap(rgba, pixel_format=mi.Bitmap.PixelFormat.RGBA).write(str(tmp_path / "rgba.exr"))
+    np.testing.assert_array_equal(read_exr(tmp_path / "rgba.exr").image, rgba)

@@ -110,5 +110,6 @@ def test_wheel_has_one_top_level_package(tmp_path):
     assert top == {"pointillist"}, top
     for expected in ("pointillist/plugins/integrators/whitted.py", "pointillist/imaging/filters.py",
                      "pointillist/imaging/data/blue_noise_64.npy", "pointillist/plugins/samplers/poisson_sets.npz",
-                     "pointillist/commands/render.py"):
+                     "pointillist/commands/render.py", "pointillist/report/report.html.in",
+                     "pointillist/report/report.js"):
         assert expected in names, expected

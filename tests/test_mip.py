@@ -9,7 +9,7 @@ import pytest
 
 from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
-RNG = np.random.default_rng(8)
+RNG = np.random.default_rng(8)  # module-level data only (drawn once at import); tests use the `rng` fixture
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +62,8 @@ def test_trilinear_native_view_matches_numpy_max(project, view):
     np.testing.assert_allclose(image, _native(view)(VOL, np.min), atol=2e-3)
 
 
-def test_sixteen_bit_volume_kept_exact_in_half_precision(mi, project):
-    vol = RNG.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
+def test_sixteen_bit_volume_kept_exact_in_half_precision(rng, mi, project):
+    vol = rng.integers(0, 4096, size=(6, 5, 4)).astype(np.uint16)  # 12-bit CT range
     vol[0, 0, 0], vol[1, 1, 1] = 0, 4095
     integrator = mi.load_dict({"type": "mip", "interpolation": "nearest"})
     integrator.set_volume(vol)
@@ -389,7 +389,7 @@ def test_cli_exr_holds_raw_values_and_png_is_windowed(cli, tmp_path):
     np.testing.assert_array_equal(exr.image, vol.max(axis=1)[::-1])
     assert exr.metadata["mode"] == "mip"
     result = cli("mip", tmp_path / "v.npy", "--view", "coronal", "--native-size", "--interpolation", "nearest",
-                 "--window", "0,2000", "-o", tmp_path / "c.png")
+                 "--window", "0,2000", "--no-labels", "-o", tmp_path / "c.png")
     assert result.returncode == 0, result.stderr
     png = np.asarray(Image.open(tmp_path / "c.png").convert("RGB")).astype(float)
     expected = np.clip((vol.max(axis=1)[::-1] + 1000) / 2000, 0, 1) * 255
@@ -403,8 +403,21 @@ def test_cli_turntable_writes_frames_and_gif(cli, tmp_path):
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in tmp_path.glob("t*")) == ["t.gif", "t_000.png", "t_001.png", "t_002.png"]
     import imageio.v2 as imageio
+    from PIL import Image
 
-    assert len(imageio.mimread(tmp_path / "t.gif")) == 3
+    frames = [np.asarray(Image.open(tmp_path / f"t_{k:03d}.png").convert("RGB")).astype(float) for k in range(3)]
+    assert all(frame.shape == (24, 24, 3) for frame in frames)
+    # frame k is the view at azimuth 120 k: frame 0 is the plain oblique view, and the
+    # off-centre blob moves between frames
+    single = cli("mip", tmp_path / "v.npy", "--size", "24", "--elevation", "10", "--azimuth", "0",
+                 "--colormap", "inferno", "-o", tmp_path / "single.png")
+    assert single.returncode == 0, single.stderr
+    np.testing.assert_array_equal(frames[0], np.asarray(Image.open(tmp_path / "single.png").convert("RGB")))
+    assert np.abs(frames[1] - frames[0]).mean() > 1 and np.abs(frames[2] - frames[1]).mean() > 1
+    gif = imageio.mimread(tmp_path / "t.gif")
+    assert len(gif) == 3
+    for frame, shown in zip(frames, gif):  # the GIF's palette may round colours a little
+        assert np.abs(np.asarray(shown)[..., :3].astype(float) - frame).mean() < 3
 
 
 @pytest.mark.parametrize("args,message", [
@@ -422,3 +435,253 @@ def test_cli_bad_input_one_line_exit_2(cli, tmp_path, args, message):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# Patient space: anatomical views whatever the voxel order
+# ---------------------------------------------------------------------------------------------
+def _write_all_orders(folder):
+    """The same asymmetric object in seven voxel orders / formats; returns (object, paths)."""
+    from medical_files import (asymmetric_object, write_dicom_coronal, write_enhanced, write_nifti,
+                               write_nrrd_permuted)
+
+    obj = asymmetric_object()
+    paths = []
+    for codes in ("RAS", "LAS", "LPI"):
+        write_nifti(folder / f"{codes}.nii.gz", obj, codes)
+        paths.append(folder / f"{codes}.nii.gz")
+    write_nrrd_permuted(folder / "permuted.nrrd", obj)
+    paths.append(folder / "permuted.nrrd")
+    write_dicom_coronal(folder / "coronal_dicom", obj)
+    paths.append(folder / "coronal_dicom")
+    (folder / "enhanced").mkdir()
+    write_enhanced(folder / "enhanced" / "mf.dcm", [obj])
+    paths.append(folder / "enhanced")
+    np.save(folder / "lps.npy", obj)  # no orientation: voxel axes taken as L, P, S
+    paths.append(folder / "lps.npy")
+    return obj, paths
+
+
+@pytest.mark.parametrize("view", ["axial", "coronal", "sagittal"])
+def test_same_object_in_any_voxel_order_gives_identical_views(mi, tmp_path, view):
+    from medical_files import SPACING
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import project_volume
+
+    obj, paths = _write_all_orders(tmp_path)
+    expected = _native(view)(obj, np.max)  # the LPS-ordered object: radiological reference
+    for path in paths:
+        volume = load_volume(path, spacing=SPACING if path.suffix == ".npy" else None)
+        image, integrator = project_volume(volume, view=view, native=True, interpolation="nearest")
+        np.testing.assert_array_equal(image, expected, err_msg=str(path.name))
+        assert integrator.last_path == "columns", path.name  # permuted into voxel axes: the fast path
+
+
+def test_radiological_convention_puts_the_marker_where_viewers_do(mi, tmp_path):
+    """The marker sits at the patient's right, anterior, superior (asymmetric_object)."""
+    from medical_files import asymmetric_object, write_nifti
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import patient_view, project_volume
+
+    write_nifti(tmp_path / "o.nii", asymmetric_object(), "LPI")
+    volume = load_volume(tmp_path / "o.nii")
+    for view, (row_half, col_half) in {"axial": ("top", "left"),     # anterior up, right on the left
+                                       "coronal": ("top", "left"),   # superior up, right on the left
+                                       "sagittal": ("top", "left"),  # superior up, anterior on the left
+                                       }.items():
+        image, _ = project_volume(volume, view=view, native=True, interpolation="nearest")
+        row, col = np.unravel_index(np.argmax(image), image.shape)
+        assert (row < image.shape[0] / 2) == (row_half == "top") and (col < image.shape[1] / 2), view
+        labels = patient_view(view)["labels"]
+        assert labels["left"] in ("R", "A") and labels["top"] in ("A", "S")
+        mirrored, _ = project_volume(volume, view=view, native=True, interpolation="nearest", neurological=True)
+        np.testing.assert_array_equal(mirrored, image[:, ::-1])
+    assert patient_view("axial", neurological=True)["labels"] == {"left": "L", "right": "R", "top": "A",
+                                                                   "bottom": "P"}
+    assert patient_view("sagittal")["labels"] == {"left": "A", "right": "P", "top": "S", "bottom": "I"}
+    assert patient_view(None, 90.0, 0.0)["labels"]["top"] == "S"  # azimuth turns about the patient's S axis
+
+
+def test_nibabel_anatomical_and_its_dicom_export_agree(mi, tmp_path):
+    import os
+
+    import nibabel
+    from medical_files import write_dicom_axial
+    from nibabel.testing import data_path
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import project_volume
+
+    path = os.path.join(data_path, "anatomical.nii")
+    canonical = nibabel.as_closest_canonical(nibabel.load(path))  # RAS, by nibabel
+    ras = np.asarray(canonical.dataobj)
+    obj = np.ascontiguousarray(ras[::-1, ::-1, :].transpose(2, 1, 0)).astype(np.int16)  # LPS order
+    n = np.array(ras.shape)
+    corner = canonical.affine @ [n[0] - 1, n[1] - 1, 0, 1]  # RAS of LPS voxel (0, 0, 0)
+    spacing = tuple(float(s) for s in canonical.header.get_zooms()[:3])
+    write_dicom_axial(tmp_path / "export", obj, spacing=spacing, origin=(-corner[0], -corner[1], corner[2]))
+    nifti, dicom = load_volume(path), load_volume(tmp_path / "export")
+    centre = np.array([*(np.array(nifti.shape_xyz) - 1) / 2, 1.0])
+    np.testing.assert_allclose(nifti.affine @ centre, dicom.affine @ centre)
+    for view in ("axial", "coronal", "sagittal"):
+        a, _ = project_volume(nifti, view=view, native=True, interpolation="nearest")
+        b, _ = project_volume(dicom, view=view, native=True, interpolation="nearest")
+        np.testing.assert_array_equal(a, b, err_msg=view)
+        np.testing.assert_array_equal(a, _native(view)(obj, np.max), err_msg=view)
+
+
+def test_oblique_nifti_renders_the_object_upright(mi, tmp_path):
+    """A vertical rod (along the patient's S axis) sampled on a voxel grid tilted 25 degrees about
+    the left-right axis: sagittal and coronal views show it vertical, in patient space."""
+    import nibabel
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import project_volume
+
+    n, step, angle = 40, 1.0, np.radians(25.0)
+    rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    ras = np.eye(4)
+    ras[:3, :3] = rotation * step
+    ras[:3, 3] = -rotation @ np.full(3, (n - 1) / 2 * step)  # grid centred on the origin
+    i, j, k = np.meshgrid(*(np.arange(n),) * 3, indexing="ij")
+    points = np.einsum("ab,bijk->aijk", ras[:3, :3], np.stack([i, j, k])) + ras[:3, 3, None, None, None]
+    rod = (np.hypot(points[0] - 3.0, points[1] + 4.0) <= 2.0) & (np.abs(points[2]) <= 12.0)  # x=3 (R), y=-4 (P)
+    nibabel.save(nibabel.Nifti1Image(np.where(rod, 1000, 0).astype(np.int16), ras), str(tmp_path / "rod.nii"))
+    volume = load_volume(tmp_path / "rod.nii")
+    for view in ("sagittal", "coronal"):
+        image, integrator = project_volume(volume, view=view, size=(64, 64), interpolation="trilinear")
+        assert integrator.last_path != "columns"  # oblique in voxel space: marched
+        rows = np.flatnonzero(image.max(axis=1) > 500)
+        assert len(rows) >= 20, view  # ~24 mm of rod at ~1 pixel per mm
+        slope = np.polyfit(rows, _centroids(image[rows]), 1)[0]
+        assert abs(slope) < 0.02, (view, slope)  # upright: the same column from top to bottom
+    # without the patient pose (voxel axes as L, P, S) the rod leans in the sagittal view
+    from pointillist.imaging.volumes import Volume
+
+    bare = Volume(volume.data, volume.spacing)
+    image, _ = project_volume(bare, view="sagittal", size=(64, 64))
+    rows = np.flatnonzero(image.max(axis=1) > 500)
+    assert abs(np.polyfit(rows, _centroids(image[rows]), 1)[0]) > 0.3  # leans by tan(25 deg) = 0.47
+
+
+def _centroids(rows):
+    """Column centroid of the bright part (> half the maximum) of each image row."""
+    weights = np.where(rows > rows.max() / 2, rows, 0.0)
+    return (weights * np.arange(rows.shape[1])).sum(axis=1) / weights.sum(axis=1)
+
+
+def test_oblique_native_size_uses_in_plane_spacing(mi):
+    import os
+
+    import nibabel
+    from nibabel.testing import data_path
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import project_volume
+
+    path = os.path.join(data_path, "example4d.nii.gz")
+    volume = load_volume(path, frame=0)
+    sx, sy, sz = volume.spacing  # 2, 2, 2.2: j and k tilted ~9 degrees about x
+    image, integrator = project_volume(volume, view="axial", native=True, interpolation="nearest")
+    nx, ny, nz = volume.shape_xyz
+    depth = ny * sy * np.cos(np.radians(9.3)) + nz * sz * np.sin(np.radians(9.3))  # A-P span of the tilted box
+    assert image.shape[1] == nx and abs(image.shape[0] - depth / sy) <= 2
+    assert integrator.last_path != "columns"
+    raw = np.asarray(nibabel.load(path).dataobj)[..., 0]
+    assert np.nanmax(image) == raw.max()  # nearest lookups: the brightest voxel survives the projection
+
+
+def test_pydicom_ct_small_axial_view_is_the_stored_slice(mi, tmp_path):
+    """Radiology viewers show an axial slice with IOP (1,0,0,0,1,0) as stored: so does the axial view."""
+    import shutil
+
+    import pydicom
+    from pydicom.data import get_testdata_file
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import project_volume
+
+    (tmp_path / "ct").mkdir()
+    shutil.copy(get_testdata_file("CT_small.dcm"), tmp_path / "ct")
+    ds = pydicom.dcmread(get_testdata_file("CT_small.dcm"))
+    image, _ = project_volume(load_volume(tmp_path / "ct"), view="axial", native=True, interpolation="nearest")
+    np.testing.assert_array_equal(image, ds.pixel_array * float(ds.RescaleSlope) + float(ds.RescaleIntercept))
+
+
+def test_cli_labels_exr_patient_axes_frames_and_warnings(cli, tmp_path):
+    import os
+
+    from nibabel.testing import data_path
+    from PIL import Image
+
+    from pointillist.imaging.io import read_exr
+
+    np.save(tmp_path / "v.npy", _blob((16, 48, 40)))
+    common = ["--view", "axial", "--native-size", "--interpolation", "nearest", "--window", "0,2"]
+    assert cli("mip", tmp_path / "v.npy", *common, "-o", tmp_path / "l.png").returncode == 0
+    assert cli("mip", tmp_path / "v.npy", *common, "--no-labels", "-o", tmp_path / "n.png").returncode == 0
+    labelled = np.asarray(Image.open(tmp_path / "l.png").convert("RGB")).astype(int)
+    plain = np.asarray(Image.open(tmp_path / "n.png").convert("RGB")).astype(int)
+    changed = np.argwhere(np.any(labelled != plain, axis=2))
+    values = labelled[changed[:, 0], changed[:, 1]]
+    assert (values >= 200).all(axis=1).any() and (values <= 40).all(axis=1).any()  # white letters, black outline
+    height, width = plain.shape[:2]
+    near_middle = ((np.abs(changed[:, 0] - height / 2) < height / 4) | (np.abs(changed[:, 1] - width / 2) < width / 4))
+    assert near_middle.all()  # letters only at the middle of the edges
+    result = cli("mip", tmp_path / "v.npy", "--view", "sagittal", "--neurological", "-o", tmp_path / "s.exr",
+                 "--size", "32")
+    assert result.returncode == 0, result.stderr
+    meta = read_exr(tmp_path / "s.exr").metadata
+    assert meta["patient_frame"] == "LPS" and meta["display"] == "neurological"
+    assert (meta["image_left"], meta["image_right"], meta["image_top"], meta["image_bottom"]) == ("P", "A", "S", "I")
+    assert meta["view_forward"] == "-1,0,0" and meta["view_right"] == "0,-1,0"
+    four_d = os.path.join(data_path, "example4d.nii.gz")
+    result = cli("mip", four_d, "-o", tmp_path / "f.png", "--size", "16")
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "2 frames" in result.stderr and "--frame" in result.stderr
+    result = cli("mip", four_d, "--frame", "1", "-o", tmp_path / "f.png", "--size", "16")
+    assert result.returncode == 0, result.stderr
+    import nrrd
+
+    nrrd.write(str(tmp_path / "s.nrrd"), np.zeros((2, 3, 4), np.int16),
+               {"space": "scanner-xyz", "space directions": np.eye(3)}, index_order="C")
+    result = cli("mip", tmp_path / "s.nrrd", "-o", tmp_path / "w.png", "--size", "16")
+    assert result.returncode == 0
+    assert result.stderr.strip().splitlines() == [
+        f"pointillist mip: warning: volume: {tmp_path / 's.nrrd'}: NRRD space 'scanner-xyz' has no anatomical "
+        "axes; taken as LPS"]
+
+
+def test_integrator_reads_a_frame_and_poses_in_patient_space(mi):
+    import os
+
+    import nibabel
+    from nibabel.testing import data_path
+
+    path = os.path.join(data_path, "example4d.nii.gz")
+    integrator = mi.load_dict({"type": "mip", "filename": path, "frame": 1})
+    np.testing.assert_array_equal(integrator.volume.data, np.asarray(nibabel.load(path).dataobj)[..., 1].T)
+    with pytest.raises(Exception, match="4-D with 2 frames"):
+        mi.load_dict({"type": "mip", "filename": path})
+    unposed = mi.load_dict({"type": "mip", "filename": path, "frame": 1, "patient_space": False})
+    posed_box = np.asarray(integrator._orient[:3, :3]) @ np.asarray(integrator.volume.extent)
+    assert not np.allclose(posed_box, unposed.volume.extent)  # the posed box is turned (LAS, oblique)
+    np.testing.assert_array_equal(unposed._orient, np.eye(4))
+
+
+def test_frame_task_loads_the_chosen_frame(mi):
+    import os
+
+    from nibabel.testing import data_path
+
+    from pointillist.imaging.volumes import load_volume
+    from pointillist.mip import mip_frame_task, project_volume
+
+    path = os.path.join(data_path, "example4d.nii.gz")
+    options = {"size": (24, 24), "interpolation": "nearest", "neurological": True}
+    result = mip_frame_task({"volume": path, "spacing": None, "load": {"frame": 1}, "view": {"view": "coronal"},
+                             "options": options})
+    expected, _ = project_volume(load_volume(path, frame=1), view="coronal", **options)
+    np.testing.assert_array_equal(result["image"], expected)

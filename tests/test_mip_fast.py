@@ -12,7 +12,7 @@ import pytest
 
 from pointillist.imaging.volumes import Volume, shepp_logan_phantom
 
-RNG = np.random.default_rng(80)
+RNG = np.random.default_rng(80)  # module-level data only (drawn once at import); tests use the `rng` fixture
 
 VOLUMES = {
     "random_float": RNG.random((5, 6, 7)).astype(np.float32),
@@ -104,12 +104,12 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
 
 
 @pytest.mark.parametrize("nx", [64, 16, 9])
-def test_half_key_and_float_reductions_equal_numpy(mi, nx):
+def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
     # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x);
     # nx odd: one float16 gather a voxel
     from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
 
-    vol = RNG.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
+    vol = rng.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
     storage = mi.Float16(vol.ravel())
     for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
         for mode, reduce in (("mip", np.max), ("minip", np.min)):
@@ -283,11 +283,11 @@ def test_flat_brick_samples_repeat_the_texture_arithmetic(mi, value, dtype, prec
 
 
 @pytest.mark.parametrize("brick", [2, 4, 8])
-def test_brick_grid_equals_brute_force_dilated_extremes(mi, brick):
+def test_brick_grid_equals_brute_force_dilated_extremes(rng, mi, brick):
     from pointillist.plugins.integrators._mip_accel import brick_grid
 
-    vol = RNG.random((17, 9, 24)).astype(np.float32)
-    vol[RNG.random(vol.shape) < 0.1] = np.nan
+    vol = rng.random((17, 9, 24)).astype(np.float32)
+    vol[rng.random(vol.shape) < 0.1] = np.nan
     vol[:3, :3, :3] = np.nan  # a brick of NaN only (brick 2)
     upper, lower = brick_grid(vol, brick=brick, offset=0.25, slab=7)  # slabs that split bricks
     for index in np.ndindex(upper.shape):

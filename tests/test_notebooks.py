@@ -15,6 +15,7 @@ def test_there_are_notebooks():
                                           "volume_mip.ipynb", "whitted_phong.ipynb"}
 
 
+@pytest.mark.slow  # executes every notebook in a Jupyter kernel
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_runs(path, tmp_path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")

@@ -12,7 +12,7 @@ from pointillist.imaging import tone
 from pointillist.imaging.io import read_exr, to_8bit, write_exr, write_png
 from pointillist.cli import main
 
-RNG = np.random.default_rng(3)
+RNG = np.random.default_rng(3)  # module-level data only (drawn once at import); tests use the `rng` fixture
 HDR = (RNG.random((12, 16, 3)) ** 3 * 6).astype(np.float32)
 
 
@@ -59,9 +59,9 @@ def test_display_step_on_exr_applies_tonemap_clip_first(exr, tmp_path, capsys):
     assert metadata["post_steps"] == "tonemap:clip;equalize"
 
 
-def test_png_input_and_plot(tmp_path, capsys):
+def test_png_input_and_plot(rng, tmp_path, capsys):
     source = tmp_path / "in.png"
-    grey = RNG.integers(0, 256, (20, 30)).astype(np.float32)
+    grey = rng.integers(0, 256, (20, 30)).astype(np.float32)
     write_png(source, grey, srgb=False, max_value=255)
     out = tmp_path / "stretched.png"
     status, stdout, err = run(capsys, source, "-o", out, "--steps", "stretch:50,20,200,235;equalize:16", "--plot")
@@ -74,9 +74,9 @@ def test_png_input_and_plot(tmp_path, capsys):
         assert image.format == "PNG" and image.size[0] > 300
 
 
-def test_plot_flags_do_not_swallow_the_input(tmp_path, capsys):
+def test_plot_flags_do_not_swallow_the_input(rng, tmp_path, capsys):
     source = tmp_path / "in.png"
-    write_png(source, RNG.integers(0, 256, (8, 9)).astype(np.float32), srgb=False, max_value=255)
+    write_png(source, rng.integers(0, 256, (8, 9)).astype(np.float32), srgb=False, max_value=255)
     # --plot first: it takes no value, so IN stays the input
     status, stdout, err = run(capsys, "--plot", source, "-o", tmp_path / "a.png", "--steps", "equalize")
     assert status == 0, err
@@ -105,11 +105,11 @@ def test_list_steps_needs_no_files(capsys):
         assert f"\n{name}" in "\n" + stdout
 
 
-def test_lut_step_reads_a_table(tmp_path, capsys):
+def test_lut_step_reads_a_table(rng, tmp_path, capsys):
     table = tmp_path / "invert.txt"
     np.savetxt(table, 255 - np.arange(256))
     source = tmp_path / "g.png"
-    grey = RNG.integers(0, 256, (5, 6)).astype(np.float32)
+    grey = rng.integers(0, 256, (5, 6)).astype(np.float32)
     write_png(source, grey, srgb=False, max_value=255)
     out = tmp_path / "inv.png"
     assert run(capsys, source, "-o", out, "--steps", f"lut:{table}")[0] == 0

@@ -20,8 +20,10 @@ def test_register_is_idempotent_and_lists_plugins(mi):
     first = plugins.register()
     assert plugins.register() == first == plugins.registered()
     assert set(first.values()) <= {"integrator", "sampler", "bsdf"}
+    needs = {"adaptive": {"nested": {"type": "path"}}}  # required parameters of some plugins
     for name, kind in first.items():  # every registered plugin instantiates from a dict
-        assert kind in ("integrator", "sampler", "bsdf")
+        plugin = mi.load_dict({"type": name, **needs.get(name, {})})
+        assert isinstance(plugin, {"integrator": mi.Integrator, "sampler": mi.Sampler, "bsdf": mi.BSDF}[kind]), name
 
 
 def test_register_without_variant_errors(tmp_path):
@@ -42,8 +44,9 @@ def test_render_cli_writes_exr_png_and_metadata(tmp_path, cli, mi):
     assert image.shape == (24, 24, 3) and np.isfinite(image).all() and image.mean() > 0.01
     assert meta["spp"] == 4 and meta["seed"] == 3 and meta["width"] == 24
     assert meta["integrator"] and meta["sampler"] == "independent"
-    for key in ("render_seconds", "compile_seconds", "execute_seconds", "trace_seconds"):
-        assert meta[key] >= 0.0
+    # the timings printed are the ones stored (a render takes time: render_seconds > 0)
+    assert meta["render_seconds"] > 0
+    assert f"trace {meta['trace_seconds']:.2f} s, JIT compile {meta['compile_seconds']:.2f} s" in proc.stdout
     assert out.with_suffix(".png").stat().st_size > 100
     # Same pixels as an in-process render of the same scene, spp and seed.
     from pointillist.scene import load_scene, timed_render

@@ -9,13 +9,12 @@ import pytest
 import pointillist.imaging  # noqa: F401  (libLLVM first)
 from pointillist.imaging.resample import keys_kernel, resize, sample
 
-RNG = np.random.default_rng(66)
 SHAPES = [(1, 1), (2, 2), (7, 9), (5, 4, 3)]
 SIZES = [(1, 1), (3, 5), (4, 3), (13, 11), (10, 7)]
 
 
-def image(shape):
-    return (RNG.random(shape) * 255).astype(np.float32)
+def image(rng, shape):
+    return (rng.random(shape) * 255).astype(np.float32)
 
 
 def out(x):
@@ -88,8 +87,8 @@ def test_bicubic_sample_by_hand():
 # --- against OpenCV and the reference ------------------------------------------------------------
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("size", SIZES)
-def test_resize_matches_opencv(shape, size):
-    img = image(shape)
+def test_resize_matches_opencv(rng, shape, size):
+    img = image(rng, shape)
     for method, flag, kwargs in (("bilinear", cv2.INTER_LINEAR, {}),
                                  ("bicubic", cv2.INTER_CUBIC, {"a": -0.75})):
         expected = cv2.resize(img, size, interpolation=flag)
@@ -101,21 +100,21 @@ def test_resize_matches_opencv(shape, size):
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("size", SIZES)
 @pytest.mark.parametrize("method", ["nearest", "bilinear", "bicubic"])
-def test_resize_matches_reference(shape, size, method):
-    img = image(shape)
+def test_resize_matches_reference(rng, shape, size, method):
+    img = image(rng, shape)
     np.testing.assert_allclose(out(resize(img, size, method)), reference_resize(img, *size, method),
                                rtol=1e-5, atol=2e-3)
 
 
-def test_nearest_matches_opencv_exact_away_from_ties():
-    img = image((10, 12, 3))
+def test_nearest_matches_opencv_exact_away_from_ties(rng):
+    img = image(rng, (10, 12, 3))
     for size in ((7, 5), (25, 23), (5, 3)):
         np.testing.assert_array_equal(out(resize(img, size, "nearest")),
                                       cv2.resize(img, size, interpolation=cv2.INTER_NEAREST_EXACT))
 
 
-def test_sample_matches_resize_grid():
-    img = image((6, 8, 3))
+def test_sample_matches_resize_grid(rng):
+    img = image(rng, (6, 8, 3))
     width, height = 11, 5
     xs = (np.arange(width) + 0.5) * 8 / width - 0.5
     ys = (np.arange(height) + 0.5) * 6 / height - 0.5
@@ -128,8 +127,8 @@ def test_sample_matches_resize_grid():
 
 # --- properties and edges ----------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["nearest", "bilinear", "bicubic"])
-def test_same_size_is_identity(method):
-    img = image((9, 7, 3))
+def test_same_size_is_identity(rng, method):
+    img = image(rng, (9, 7, 3))
     np.testing.assert_array_equal(out(resize(img, (7, 9), method)), img)
 
 

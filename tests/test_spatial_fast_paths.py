@@ -17,21 +17,20 @@ import pointillist.imaging  # noqa: F401  (libLLVM first)
 from pointillist.imaging import filters as F
 from pointillist.imaging.neighbourhood import finite_extrema
 
-RNG = np.random.default_rng(606)
 
 
 def out(x):
     return np.asarray(x)
 
 
-def test_finite_extrema_fold_matches_numpy():
+def test_finite_extrema_fold_matches_numpy(rng):
     from drjit.llvm import Float
 
     for n in (16 * 1024, 16 * 1024 + 7, 40_000):
-        values = (RNG.standard_normal(n) * 100).astype(np.float32)
-        values[RNG.integers(0, n, 50)] = np.nan
-        values[RNG.integers(0, n, 5)] = np.inf
-        values[RNG.integers(0, n, 5)] = -np.inf
+        values = (rng.standard_normal(n) * 100).astype(np.float32)
+        values[rng.integers(0, n, 50)] = np.nan
+        values[rng.integers(0, n, 5)] = np.inf
+        values[rng.integers(0, n, 5)] = -np.inf
         finite = values[np.isfinite(values)]
         assert finite_extrema(Float(values)) == (float(finite.min()), float(finite.max()))
         # the extremes placed in the tail (past the 16 folded views) and at the very start
@@ -42,8 +41,8 @@ def test_finite_extrema_fold_matches_numpy():
     assert finite_extrema(Float(np.full(20_000, np.nan, np.float32))) is None
 
 
-def test_normalize_large_image_matches_numpy():
-    img = (RNG.standard_normal((150, 130)) * 50).astype(np.float32)
+def test_normalize_large_image_matches_numpy(rng):
+    img = (rng.standard_normal((150, 130)) * 50).astype(np.float32)
     img[3, 4] = np.nan
     img[7, 9] = np.inf
     a = np.abs(img)
@@ -56,8 +55,8 @@ def test_normalize_large_image_matches_numpy():
 
 
 @pytest.mark.parametrize("border", ["zero", "keep", "clamp", "wrap"])
-def test_correlate_normalize_large_image_ignores_the_ring(border):
-    img = (RNG.random((160, 140)) * 255).astype(np.float32)
+def test_correlate_normalize_large_image_ignores_the_ring(rng, border):
+    img = (rng.random((160, 140)) * 255).astype(np.float32)
     img[0, :] = 1e4          # a huge row on the border: in the ring for zero/keep, computed otherwise
     mode = {"zero": "constant", "keep": "constant", "clamp": "nearest", "wrap": "wrap"}[border]
     ref = np.abs(ndi.correlate(img.astype(np.float64), F.SOBEL_X.astype(np.float64), mode=mode))
@@ -75,15 +74,15 @@ def test_correlate_normalize_large_image_ignores_the_ring(border):
     assert got[1:-1, 1:-1].min() == 0 or border not in ("zero", "keep")
 
 
-def test_median_large_images_match_opencv_and_scipy():
-    img = (RNG.random((70, 90)) * 255).astype(np.float32)
-    img[RNG.random(img.shape) < 0.05] = 255       # salt
+def test_median_large_images_match_opencv_and_scipy(rng):
+    img = (rng.random((70, 90)) * 255).astype(np.float32)
+    img[rng.random(img.shape) < 0.05] = 255       # salt
     for size in (3, 5):
         np.testing.assert_array_equal(out(F.median(img, size)), cv2.medianBlur(img, size))
         for border, mode in (("reflect", "reflect"), ("wrap", "wrap"), ("constant", "constant")):
             np.testing.assert_array_equal(out(F.median(img, size, border=border)),
                                           ndi.median_filter(img, size=size, mode=mode))
-    colour = (RNG.random((40, 33, 3)) * 255).astype(np.float32)
+    colour = (rng.random((40, 33, 3)) * 255).astype(np.float32)
     np.testing.assert_array_equal(out(F.median(colour, 5, border="mirror")),
                                   ndi.median_filter(colour, size=(5, 5, 1), mode="mirror"))
 
@@ -122,10 +121,10 @@ def test_fixed_median_networks_on_every_0_1_input(n):
 
 
 @pytest.mark.parametrize("shape", [(3, 2), (40, 3), (2, 50, 3), (33, 47, 2)])
-def test_clamp_border_without_a_ring_pass_matches_scipy(shape):
+def test_clamp_border_without_a_ring_pass_matches_scipy(rng, shape):
     """``clamp`` computes every pixel in the main kernel (replicated rows, column selects)."""
-    img = (RNG.random(shape) * 255).astype(np.float32)
-    kernel = RNG.standard_normal((5, 7)).astype(np.float32)
+    img = (rng.random(shape) * 255).astype(np.float32)
+    kernel = rng.standard_normal((5, 7)).astype(np.float32)
     weights = kernel if img.ndim == 2 else kernel[..., None]
     expected = ndi.correlate(img.astype(np.float64), weights.astype(np.float64), mode="nearest")
     np.testing.assert_allclose(out(F.correlate(img, kernel, border="clamp")), expected, atol=2e-3)
@@ -133,9 +132,9 @@ def test_clamp_border_without_a_ring_pass_matches_scipy(shape):
     np.testing.assert_array_equal(out(F.median(img, 5)), ndi.median_filter(img, size=size, mode="nearest"))
 
 
-def test_results_do_not_follow_later_changes_of_a_numpy_input():
+def test_results_do_not_follow_later_changes_of_a_numpy_input(rng):
     """Results are evaluated before returning: numpy inputs are shared with Dr.Jit, not copied."""
-    img = (RNG.random((64, 48)) * 255).astype(np.float32)
+    img = (rng.random((64, 48)) * 255).astype(np.float32)
     keep = img.copy()
     results = [F.normalize(img, absolute=False), F.threshold(img, 128), F.median(img, 3),
                F.correlate(img, F.GAUSSIAN_3, normalize=True)]

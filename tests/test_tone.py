@@ -14,7 +14,7 @@ from pointillist.imaging.io import to_8bit
 from pointillist.imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch, dynamic_range,
                           equalize_histogram, gamma, histogram, lut, quantize, tonemap)
 
-RNG = np.random.default_rng(7)
+RNG = np.random.default_rng(7)  # module-level data only (drawn once at import); tests use the `rng` fixture
 GREY8 = RNG.integers(0, 256, (37, 53), dtype=np.uint8)          # odd size: not whole 32-bit words
 GREY8_PACKED = RNG.integers(20, 200, (32, 48), dtype=np.uint8)  # whole words: the packed path
 RGB8 = RNG.integers(0, 256, (16, 24, 3), dtype=np.uint8)
@@ -51,8 +51,8 @@ def warned(function, *args, **kwargs):
 
 # ------------------------------------------------------------------------------------------ gamma
 
-def test_gamma_formula_and_opencv():
-    x = RNG.random((20, 30), dtype=np.float32) * 255
+def test_gamma_formula_and_opencv(rng):
+    x = rng.random((20, 30), dtype=np.float32) * 255
     expected = 255 * (x / 255.0) ** (1 / 2.2)
     np.testing.assert_allclose(a(gamma(x, 2.2)), expected, rtol=2e-6, atol=1e-4)
     np.testing.assert_allclose(a(gamma(x, 2.2)), cv2.pow(x / 255.0, 1 / 2.2) * 255, rtol=2e-6, atol=1e-4)
@@ -221,11 +221,11 @@ def test_quantize_rejects_bad_levels(levels, error):
 
 # ------------------------------------------------------------------------------------------ lut
 
-def test_lut_matches_opencv():
-    table = RNG.integers(0, 256, 256).astype(np.uint8)
+def test_lut_matches_opencv(rng):
+    table = rng.integers(0, 256, 256).astype(np.uint8)
     for image in (GREY8, GREY8_PACKED, RGB8):
         np.testing.assert_array_equal(a(lut(image, table)), cv2.LUT(image, table).astype(np.float32))
-    per_channel = RNG.integers(0, 256, (256, 3)).astype(np.uint8)
+    per_channel = rng.integers(0, 256, (256, 3)).astype(np.uint8)
     np.testing.assert_array_equal(a(lut(RGB8, per_channel)),
                                   cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)).astype(np.float32))
     np.testing.assert_array_equal(a(lut(RGB8.astype(np.float32), per_channel)),
@@ -261,21 +261,21 @@ def test_equalize_matches_spec_uint8(image):
     np.testing.assert_array_equal(a(equalize_histogram(image.astype(np.float32))), expected)
 
 
-def test_equalize_levels_and_float_binning():
-    x = RNG.random((21, 19), dtype=np.float32) * 255
+def test_equalize_levels_and_float_binning(rng):
+    x = rng.random((21, 19), dtype=np.float32) * 255
     for levels in (2, 16, 256, 1000):
         bins = np.clip(np.round(x * (levels - 1) / 255.0), 0, levels - 1).astype(np.int64)
         expected = spec_equalize(bins, levels) * 255 / (levels - 1)
         np.testing.assert_allclose(a(equalize_histogram(x, levels)), expected, rtol=1e-6)
 
 
-def test_equalize_properties():
+def test_equalize_properties(rng):
     flat = np.arange(256, dtype=np.uint8).reshape(16, 16)   # every level once: already flat
     np.testing.assert_array_equal(a(equalize_histogram(flat)), flat)
     assert np.unique(a(equalize_histogram(np.full((6, 6), 90.0)))).tolist() == [255.0]  # constant -> white
     assert a(equalize_histogram(np.full((4, 4), 255, np.uint8))).max() == 255
     # the result's cumulative distribution is the uniform one: P(out <= F) = (F + 1) / L to rounding
-    skewed = (RNG.random((64, 64)) ** 3 * 255).astype(np.uint8)
+    skewed = (rng.random((64, 64)) ** 3 * 255).astype(np.uint8)
     out = a(equalize_histogram(skewed)).ravel()
     levels = np.unique(out)
     cdf = np.searchsorted(np.sort(out), levels, side="right") / out.size
@@ -442,9 +442,9 @@ def test_dynamic_range():
 # ------------------------------------------------------------------------------------------ fast paths (speed work)
 
 @pytest.mark.parametrize("size", [1, 2, 3, 4, 5, 6, 7, 8, 13])
-def test_equalize_and_histogram_every_word_tail(size):
+def test_equalize_and_histogram_every_word_tail(rng, size):
     """Packed words plus a tail of 0..3 bins (and images smaller than one word) count every pixel."""
-    image = RNG.integers(0, 256, (1, size), dtype=np.uint8)
+    image = rng.integers(0, 256, (1, size), dtype=np.uint8)
     np.testing.assert_array_equal(histogram(image), np.bincount(image.ravel(), minlength=256))
     np.testing.assert_array_equal(a(equalize_histogram(image)), spec_equalize(image, 256))
     x = image.astype(np.float32) * (15 / 255)          # float input, 16 levels: UInt8 bins in one pass
@@ -452,9 +452,9 @@ def test_equalize_and_histogram_every_word_tail(size):
     np.testing.assert_allclose(a(equalize_histogram(x * 17, 16)), spec_equalize(bins, 16) * 17, rtol=1e-6)
 
 
-def test_uint8_views_misaligned_and_strided():
+def test_uint8_views_misaligned_and_strided(rng):
     """uint8 views that are not whole aligned words, or not contiguous, give the same results."""
-    buffer = RNG.integers(0, 256, 1 + 48 * 32, dtype=np.uint8)
+    buffer = rng.integers(0, 256, 1 + 48 * 32, dtype=np.uint8)
     shifted = buffer[1:].reshape(48, 32)                 # data pointer not a multiple of 4
     assert shifted.ctypes.data % 4 != 0
     transposed = GREY8_PACKED.T                          # not C-contiguous
@@ -477,12 +477,12 @@ def test_uint8_result_does_not_alias_input():
     np.testing.assert_array_equal(a(equalized), expected_eq)
 
 
-def test_equalize_many_levels_and_colour_odd_sizes():
+def test_equalize_many_levels_and_colour_odd_sizes(rng):
     """levels > 256 (UInt32 bins, direct histogram) and colour images of odd pixel counts."""
-    x = RNG.random((9, 11), dtype=np.float32) * 255
+    x = rng.random((9, 11), dtype=np.float32) * 255
     bins = np.clip(np.round(x * 299 / 255.0), 0, 299).astype(np.int64)
     np.testing.assert_allclose(a(equalize_histogram(x, 300)), spec_equalize(bins, 300) * 255 / 299, rtol=1e-6)
-    image = RNG.integers(0, 256, (5, 7, 3), dtype=np.uint8).astype(np.float32)
+    image = rng.integers(0, 256, (5, 7, 3), dtype=np.uint8).astype(np.float32)
     hsv = cv2.cvtColor(image / 255.0, cv2.COLOR_RGB2HSV)
     v = np.round(hsv[..., 2] * 255).astype(np.int64)
     hsv[..., 2] = spec_equalize(v, 256) / 255.0
@@ -503,27 +503,42 @@ def _kernels(function):
     return [k for k in history if k["type"] == dr.KernelType.JIT]
 
 
-def test_uint8_equalize_is_two_passes_and_nothing_recompiles():
+def _hashes(function):
+    """The hashes of the JIT kernels ``function`` launches (the same hash: no recompilation)."""
+    return {k["hash"] for k in _kernels(function)}
+
+
+def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng, aligned):
     """Histogram pass (n/4 lanes) + table pass (n lanes); new arguments reuse the compiled kernels."""
-    image = RNG.integers(0, 256, (64, 96), dtype=np.uint8)
+    image = rng.integers(0, 256, (64, 96), dtype=np.uint8)
     equalize_histogram(image)
     kernels = _kernels(lambda: a(equalize_histogram(image)))
     per_pixel = sorted(k["size"] for k in kernels if k["size"] in (image.size // 4, image.size))
     assert per_pixel == [image.size // 4, image.size]
     assert all(k["size"] <= 65536 for k in kernels if k["size"] not in per_pixel)  # 256 x 256 pair table
-    other = RNG.integers(0, 256, (64, 96), dtype=np.uint8)
-    assert all(k["cache_hit"] for k in _kernels(lambda: a(equalize_histogram(other))))
-    grey = RNG.random((32, 32), dtype=np.float32) * 255
-    gamma(grey, 2.2), contrast_stretch(grey, 10, 20, 200, 210), lut(image, np.arange(256))
-    for call in (lambda: gamma(grey, 0.7), lambda: contrast_stretch(grey, 30, 5, 99, 250),
-                 lambda: lut(image, np.arange(256)[::-1]), lambda: gamma(image, 1.9)):
-        kernels = _kernels(lambda: a(call()))
-        assert kernels and all(k["cache_hit"] for k in kernels)
+    # Recompilation is checked by kernel hashes, not ``cache_hit`` (which also counts kernels
+    # loaded from ~/.drjit and so depends on what ran on this machine before).
+    # (The uint8 histogram pass reads the caller's bytes in place, and Dr.Jit compiles another
+    # variant for a 64-byte aligned buffer: aligned inputs throughout.)
+    compiled = _hashes(lambda: a(equalize_histogram(aligned(image))))
+    for _ in range(3):
+        other = aligned(rng.integers(0, 256, (64, 96), dtype=np.uint8))
+        assert _hashes(lambda other=other: a(equalize_histogram(other))) <= compiled
+    grey = rng.random((32, 32), dtype=np.float32) * 255
+    grey, image = aligned(grey), aligned(image)
+    pairs = ((lambda: gamma(grey, 2.2), lambda: gamma(grey, 0.7)),
+             (lambda: contrast_stretch(grey, 10, 20, 200, 210), lambda: contrast_stretch(grey, 30, 5, 99, 250)),
+             (lambda: lut(image, np.arange(256)), lambda: lut(image, np.arange(256)[::-1])),
+             (lambda: gamma(image, 2.2), lambda: gamma(image, 1.9)))
+    for first, then in pairs:
+        compiled = _hashes(lambda first=first: a(first()))
+        again = _hashes(lambda then=then: a(then()))
+        assert again and again <= compiled
 
 
-def test_tonemap_fixed_curves_are_one_pass():
+def test_tonemap_fixed_curves_are_one_pass(rng):
     """Sanitising, exposure, curve, sRGB and the +inf policy run in one kernel over the pixels."""
-    hdr = RNG.random((24, 40, 3), dtype=np.float32) * 8
+    hdr = rng.random((24, 40, 3), dtype=np.float32) * 8
     hdr[0, 0, 1] = np.inf
     for operator in ("clip", "aces", "hable"):
         warned(tonemap, hdr, operator)

@@ -11,8 +11,8 @@ import numpy as np
 from pointillist.imaging.volumes import Volume, load_volume, volume_texture
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 from pointillist.plugins.integrators._common import develop_film
-from pointillist.plugins.properties import (boolean_property, number_property, scalar_transform, string_property,
-                                            transform_property)
+from pointillist.plugins.properties import (boolean_property, integer_property, number_property, scalar_transform,
+                                            string_property, transform_property)
 
 __all__ = ["MIPIntegrator", "MODES", "MAX_RAY_SAMPLES"]
 
@@ -35,6 +35,14 @@ def _parse_spacing(text: str) -> list[float]:
     return spacing
 
 
+def _inverse_pose(matrix: np.ndarray) -> np.ndarray:
+    """Inverse of a 4x4 rotation / reflection: the exact transpose for a signed permutation (axis-aligned
+    acquisitions: texture-space rays of axis-aligned views stay exactly axis-aligned), else numpy's inverse."""
+    if np.all(np.isin(matrix, (-1.0, 0.0, 1.0))):
+        return matrix.T
+    return np.linalg.inv(matrix)
+
+
 class MIPIntegrator(mi.SamplingIntegrator):
     r"""
     .. _integrator-mip:
@@ -49,13 +57,27 @@ class MIPIntegrator(mi.SamplingIntegrator):
        - Volume file: Mitsuba ``.vol``, ``.npy``, NRRD, NIfTI or a DICOM series folder
          (relative paths resolve against the scene file). Optional when the volume is
          given with :meth:`set_volume`.
+     * - frame
+       - |int|
+       - The volume of a 4-D ``filename`` (4-D NIfTI, DICOM series with several images per
+         position); required for those. (Default: none)
+     * - series
+       - |string|
+       - The DICOM series (UID or index) of a folder holding several. (Default: none)
      * - spacing
        - |string|
        - Voxel size ``"sx,sy,sz"`` (or one number) overriding the file's. (Default: the file's)
      * - to_world
        - |transform|
        - Pose of the volume. Before it, the volume's box is centred on the origin with
-         size = voxel counts x spacing. (Default: identity)
+         size = voxel counts x spacing and, with ``patient_space``, turned by the volume's
+         direction cosines. (Default: identity)
+     * - patient_space
+       - |bool|
+       - Pose the box in patient space (LPS: x = patient's left, y = posterior, z = superior)
+         by the volume's voxel-to-patient directions (``Volume.directions``, rotation and
+         reflection), so world axes are anatomical whatever the voxel order. Volumes without
+         orientation (``.vol``, ``.npy``, arrays) have identity directions. (Default: true)
      * - mode
        - |string|
        - ``mip`` (maximum), ``minip`` (minimum) or ``average`` along each ray. (Default: ``mip``)
@@ -132,6 +154,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self._background = number_property(props, "background", 0.0, allow_inf=True) if "background" in props else None
         self.fast_axis = boolean_property(props, "fast_axis", True)
         self.skip_bricks = boolean_property(props, "skip_bricks", True)
+        self.patient_space = boolean_property(props, "patient_space", True)
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
         self.to_world = transform_property(props, "to_world")
@@ -141,7 +164,9 @@ class MIPIntegrator(mi.SamplingIntegrator):
         filename = string_property(props, "filename", "")
         if filename:
             path = mi.file_resolver().resolve(filename)
-            self.set_volume(load_volume(str(path), spacing=spacing))
+            frame = integer_property(props, "frame", 0, 0, 2**31 - 1) if "frame" in props else None
+            series = string_property(props, "series", "") or None
+            self.set_volume(load_volume(str(path), spacing=spacing, frame=frame, series=series))
         elif spacing is not None:
             self._spacing_override = spacing
 
@@ -157,12 +182,16 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if spacing is None:
             spacing = getattr(self, "_spacing_override", None)
         if spacing is not None:
-            volume = Volume(volume.data, spacing, volume.origin, volume.metadata)
+            volume = volume.respaced(spacing)
         if to_world is not None:
             self.to_world = scalar_transform(to_world, "to_world")
         filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
         self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
         self.volume = volume
+        #: voxel axes -> world (patient LPS) directions: a 4x4 rotation / reflection
+        self._orient = np.eye(4)
+        if self.patient_space:
+            self._orient[:3, :3] = volume.directions
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
         self._flat = None  # per-brick constant value, NaN where the brick is not constant
@@ -190,6 +219,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ext = self.volume.extent
         scalar = (mi.ScalarTransform4f().translate([0.5, 0.5, 0.5])
                   @ mi.ScalarTransform4f().scale([1.0 / e for e in ext])
+                  @ scalar_transform(_inverse_pose(self._orient))
                   @ self.to_world.inverse())
         transform = mi.Transform4f(scalar)
         dr.make_opaque(transform)

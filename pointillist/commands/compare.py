@@ -4,8 +4,10 @@ Renders SCENE with each sampler at each sample count (and seed), measures each
 render's wall time (JIT compilation reported apart) and its RMSE, relative MSE and
 FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
 (table, fitted slopes, equal-time and equal-error rankings), DIR/error_vs_time.png,
-DIR/error_vs_spp.png and the renders (DIR/renders/*.exr). Finished renders are
-kept: running the same command again resumes an interrupted sweep.
+DIR/error_vs_spp.png, the renders (DIR/renders/*.exr) and DIR/report.html, a
+self-contained page (open it from disk in a browser) with the table, interactive
+plots and the renders and error maps side by side. Finished renders are kept:
+running the same command again resumes an interrupted sweep.
 """
 
 from __future__ import annotations
@@ -54,7 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                 "sampler, cached in DIR/reference (default 4096)")
     reference.add_argument("--reference", metavar="FILE.exr", help="use this EXR as the reference")
     parser.add_argument("--out", metavar="DIR", help="output folder (default out/compare/<scene name>)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress (default: a bar on a terminal, else one line per finished render)")
+    parser.add_argument("--no-report", action="store_true",
+                        help="do not write DIR/report.html (the interactive page of renders and error maps)")
     cluster = parser.add_mutually_exclusive_group()
     cluster.add_argument("--workers", type=positive_int, metavar="N",
                          help="render on a local Dask cluster of N worker processes, one task per render, "
@@ -74,8 +79,11 @@ def run(args: argparse.Namespace) -> int:
     result = compare_scene(args.scene, methods=args.samplers, spp=args.spp, seeds=args.seeds,
                            reference_spp=args.reference_spp, reference=args.reference, out_dir=args.out,
                            params=parse_defines(args.defines), workers=args.workers, scheduler=args.scheduler,
-                           progress=not args.no_progress, log=lambda line: print(line, flush=True))
+                           progress=not args.no_progress, report=not args.no_report,
+                           log=lambda line: print(line, flush=True))
     records, paths = result.records, result.paths
     print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
     print(f"wrote {paths['csv']}, {paths['md']}, {paths['time_plot']}, {paths['spp_plot']}")
+    if "html" in paths:
+        print(f"report: {paths['html']} ({'; '.join(result.notes)})")
     return 0

@@ -1,20 +1,44 @@
 """Project a CT/MRI volume: maximum (minimum, average) intensity projection to PNG or EXR.
 
 VOLUME is a Mitsuba .vol, .npy, NRRD (.nrrd/.nhdr), NIfTI (.nii/.nii.gz) file or a folder
-holding one DICOM series (values in Hounsfield units). Views: axial (looking from the feet
-along +z, x to the right, y down), coronal (from the front along +y, x right, z up), sagittal
-(from the patient's left along -x, y right, z up), or any --azimuth/--elevation in degrees
-(azimuth 0, elevation 0 is coronal; azimuth turns about z, elevation raises the camera).
-EXR output holds the raw projected values (one channel Y, no window, no colormap); PNG output
-is windowed and colour-mapped. --turntable N writes N frames around z (and an animated GIF
-beside them when imageio is installed).
+holding DICOM images (values in Hounsfield units; --series picks one of several series).
+
+Patient space: every view is anatomical whatever the voxel order. Volumes are placed in
+LPS (x = patient's left, y = posterior, z = superior, as DICOM and ITK) by their
+voxel-to-patient transform: NIfTI's affine as nibabel resolves it (sform, else qform;
+RAS+ converted to LPS), DICOM ImageOrientationPatient/ImagePositionPatient/PixelSpacing
+with the slice spacing from the positions (also enhanced multi-frame files), NRRD
+space/space directions/space origin (RAS, LAS, LPS; scanner-xyz and 3D-right/left-handed
+taken as LPS with a warning). .vol and .npy carry no orientation: voxel axes x, y, z
+(array axes 2, 1, 0) are taken as L, P, S, i.e. a DICOM axial stack's order. Sheared
+(non-orthogonal, e.g. gantry-tilt) transforms are refused; a missing or degenerate
+orientation tag falls back with a one-line warning saying what was assumed.
+
+Display convention of radiology viewers (radiological by default): axial seen from the
+feet (patient's right on the image's left, anterior up), coronal seen from the front
+(right on the left, superior up), sagittal seen from the patient's left (anterior on the
+left, superior up); --neurological mirrors left and right. --azimuth/--elevation in
+degrees turn about the patient (azimuth 0, elevation 0 is coronal; azimuth turns about
+the superior axis, elevation raises the camera towards the head). PNG output is windowed
+and colour-mapped, with the patient-direction letter (R/L, A/P, S/I; two or three for an
+oblique edge) at the middle of each edge (--no-labels: none); EXR output holds the raw
+projected values (one channel Y) and records the view's patient axes in its header.
+
+--native-size: one pixel per voxel column when the view runs along voxel axes; for an
+oblique acquisition (voxel axes not along the patient's), the in-plane voxel spacing
+along the image's right and up (the two voxel axes other than the one closest to the
+viewing direction) gives the pixel size and the image covers the whole volume.
+4-D inputs (4-D NIfTI, DICOM series with several images per slice position) need
+--frame N. --turntable N writes N frames around the patient's superior axis (and an
+animated GIF beside them when imageio is installed).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-from pointillist.commands._types import finite_float, positive_float, positive_int
+from pointillist.commands._types import finite_float, non_negative_int, positive_float, positive_int
 from pointillist.mip import NAMED_VIEWS
 
 NAME = "mip"
@@ -58,7 +82,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sizes.add_argument("--size", type=_size, default=(512, 512), metavar="N|W,H",
                        help="image size; the volume is fitted inside (default 512)")
     sizes.add_argument("--native-size", action="store_true",
-                       help="one pixel per voxel column (axis-aligned views only)")
+                       help="one pixel per voxel column (views along the patient's axes; an oblique acquisition: "
+                            "pixels of its in-plane voxel spacing)")
     parser.add_argument("--interpolation", choices=("trilinear", "nearest"), default="trilinear")
     parser.add_argument("--mode", choices=("mip", "minip", "average"), default="mip")
     parser.add_argument("--window", metavar="L,W|PRESET",
@@ -72,6 +97,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--background", type=finite_float, help="raw value of rays missing the volume")
     parser.add_argument("--precision", choices=("auto", "half", "single"), default="auto",
                         help="texture storage (auto: half precision where exact)")
+    parser.add_argument("--neurological", action="store_true",
+                        help="neurological display: patient's left on the image's left (default radiological)")
+    parser.add_argument("--no-labels", action="store_true",
+                        help="no orientation letters on the PNG's edges")
+    parser.add_argument("--frame", type=non_negative_int, metavar="N",
+                        help="volume N of a 4-D input (4-D NIfTI, multi-frame DICOM series); required for those")
+    parser.add_argument("--series", metavar="UID|INDEX",
+                        help="the DICOM series to read from a folder holding several (UID or index in the listing)")
     parser.add_argument("--turntable", type=positive_int, metavar="N",
                         help="write N frames turning about z (OUT_000.png ...) and OUT.gif")
     cluster = parser.add_mutually_exclusive_group()
@@ -90,7 +123,10 @@ def run(args: argparse.Namespace) -> int:
                         size=args.size, native=args.native_size, mode=args.mode, interpolation=args.interpolation,
                         window=args.window, colormap=args.colormap, step=args.step, spacing=args.spacing,
                         perspective=args.perspective, background=args.background, precision=args.precision,
-                        turntable=args.turntable, workers=args.workers, scheduler=args.scheduler)
+                        turntable=args.turntable, neurological=args.neurological, labels=not args.no_labels,
+                        frame=args.frame, series=args.series, workers=args.workers, scheduler=args.scheduler)
+    for warning in result.warnings:
+        print(f"pointillist mip: warning: {warning}", file=sys.stderr)
     for note in result.notes:
         print(note)
     if result.gif is not None:
@@ -99,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {names[0]}" + (f" ... {names[-1]} ({len(names)} frames)" if len(names) > 1 else ""))
     volume, info = result.volume, result.texture
     nx, ny, nz = volume.shape_xyz
-    print(f"volume {nx}x{ny}x{nz} {volume.data.dtype} spacing {', '.join(f'{s:g}' for s in volume.spacing)}; "
+    axes = f"voxel axes {volume.axis_codes}" if volume.oriented else "no orientation (voxel axes taken as LPS)"
+    print(f"volume {nx}x{ny}x{nz} {volume.data.dtype} spacing {', '.join(f'{s:g}' for s in volume.spacing)}, {axes}; "
           f"texture {info['precision']} ({info['nbytes'] / 2**20:.1f} MiB, "
           f"{'exact' if info['exact'] else 'rounded'})")
     print(f"time: load {result.load_seconds:.2f} s, project {result.project_seconds:.2f} s "
