@@ -290,14 +290,17 @@ def test_post_steps_registered_and_run(rng, tmp_path, cli):
     assert out(current).shape == (2, 3)
     source = tmp_path / "in.png"
     from pointillist.imaging.io import write_png
-    write_png(source, np.tile(np.linspace(0, 255, 16, dtype=np.float32), (12, 1)), srgb=False, max_value=255.0)
+    step = np.tile(np.where(np.arange(16) < 8, 40.0, 200.0).astype(np.float32), (12, 1))   # one vertical edge
+    write_png(source, step, srgb=False, max_value=255.0)
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr
     ramp = np.asarray(Image.open(source).convert("L")).astype(np.float32)
-    expected = out(F.threshold(F.normalize(F.sobel(ramp)), 128))
+    # normalize after a zero-border step leaves that step's uncomputed ring out (issue 17)
+    expected = out(F.threshold(F.normalize(F.sobel(ramp), ring=1), 128))
     written = np.asarray(Image.open(tmp_path / "edges.png").convert("L")).astype(np.float32)
     np.testing.assert_array_equal(written, expected)
-    assert 0 < (written == 255).mean() < 1  # edges at the borders only (zero padding), not all
+    assert (written[1:-1, 7:9] == 255).all() and (written[:, :6] == 0).all() and (written[:, 10:] == 0).all()
+    assert (written[[0, -1]] == 0).all()  # the ring stays 0: not an edge of the image
     bad = cli("post", source, "-o", tmp_path / "bad.png", "--steps", "correlate:sobel_z")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
 
