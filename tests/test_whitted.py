@@ -230,10 +230,11 @@ def test_far_and_tiny_scenes_have_no_acne(mi, transform):
     """The test scene moved to 1e5 or shrunk to 1e-4, all of it (camera and light too).
 
     Self-intersection acne would speckle lit surfaces with self-shadowing. A lit floor on
-    its own must render as before. With the sphere, the geometry itself shifts where
-    float32 runs out of digits relative to Mitsuba's ray offsets (shadow rays graze past
-    the sphere's silhouette differently; Mitsuba's ``path`` renders exactly the same
-    image), so there the check is agreement with ``path`` and few changed pixels.
+    its own must render as before. With the sphere, whitted's offsets come from error
+    bounds of each hit (issue 21; tests/test_stiff.py has the full set of scales), so it
+    changes fewer pixels than Mitsuba's ``path``, whose ``(1 + max|p|) RayEpsilon`` offsets
+    are 9e-5 at the scale of 1e-4 and 9 far from the origin (path at scale 1 renders this
+    scene exactly as whitted does).
     """
     if transform == "translate":
         T, power = mi.ScalarTransform4f().translate([1e5, -1e5, 1e5]), 1.0
@@ -259,8 +260,15 @@ def test_far_and_tiny_scenes_have_no_acne(mi, transform):
     moved = _render(mi, _diffuse_scene(mi, {"type": "whitted"}, lights=lights(power), transform=T), seed=4)
     path = _render(mi, _diffuse_scene(mi, {"type": "path", "max_depth": 2}, lights=lights(power),
                                       transform=T), seed=4)
-    np.testing.assert_allclose(moved, path, rtol=1e-4, atol=1e-6)
-    assert (np.abs(moved - ref).max(-1) > 0.05 * ref.max()).mean() < 0.05
+    path_ref = _render(mi, _diffuse_scene(mi, {"type": "path", "max_depth": 2}, lights=lights(1.0)), seed=4)
+    np.testing.assert_allclose(ref, path_ref, rtol=1e-4, atol=1e-6)
+
+    def changed(img):
+        return (np.abs(img - ref).max(-1) > 0.05 * ref.max()).mean()
+
+    # measured: whitted 0.2 % (translated) and 0 % (scaled); Mitsuba 3.9.1 path 2.9 % and 3.2 %
+    assert changed(moved) < 0.005
+    assert changed(moved) <= changed(path)
 
 
 def test_hide_emitters_and_ambient(mi):

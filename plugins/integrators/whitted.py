@@ -5,6 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from pointillist.plugins.integrators._offsets import ErrorBounds
 from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 
 __all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME", "PLUGIN_CLASS"]
@@ -118,10 +119,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     At each hit: emitted radiance; the ambient term; direct light from every
     emitter through a shadow ray (``Emitter.sample_direction`` then
-    ``Scene.ray_test`` on a ray from ``spawn_ray_to``): point, spot and
-    directional lights exactly, area and environment lights by one emitter
-    sample per camera sample (above :data:`MAX_UNROLLED_EMITTERS` emitters one
-    emitter is chosen at random per hit); reflected light is ``bsdf.eval``,
+    ``Scene.ray_test``): point, spot and directional lights exactly, area and
+    environment lights by one emitter sample per camera sample (above
+    :data:`MAX_UNROLLED_EMITTERS` emitters one emitter is chosen at random per
+    hit); reflected light is ``bsdf.eval``,
     which is zero for delta lobes. Then the ray continues along the BSDF's
     delta lobes (mirror reflection, refraction with Snell's law, Fresnel
     weights and total internal reflection, null transmission) drawn with
@@ -140,12 +141,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     emitters there are no shadow rays and no emission lookups; ambient 0 skips
     the ambient term, and ``max_depth`` 0 skips all shading.
 
-    Edges: rays leave surfaces through Mitsuba's ``spawn_ray`` /
-    ``spawn_ray_to``, whose offsets scale with the magnitude of the hit
-    position, so scenes far from the origin (1e5) or tiny (1e-4) render
-    without self-intersection acne. Normals facing away are handled by each
-    BSDF (one-sided BSDFs return black). A ray whose throughput becomes 0
-    stops early.
+    Edges: reflected, refracted and shadow rays leave a surface from a point
+    moved off it by a bound on the floating-point error of the hit, along the
+    geometric normal, to the side the ray leaves from (pbrt-v4's method; see
+    :mod:`pointillist.plugins.integrators._offsets`): a few float32 roundings
+    of the hit shape's magnitude, so the offsets scale with the scene, with no
+    absolute floor (Mitsuba 3.9.1's ``spawn_ray`` adds 9e-5 whatever the
+    unit). Shadow rays end just short of their target, itself moved off the
+    light's surface. Scenes scaled by 1e-6 .. 1e6 render the same image, and
+    moved 1e3 from the origin change 0.1 - 1.4 % of the pixels (float32
+    positions there are 6e-5 apart: tests/test_stiff.py; README "Numerical
+    robustness"). Normals facing away are handled by each BSDF (one-sided
+    BSDFs return black). A ray whose throughput becomes 0 stops early.
 
     .. code-block:: xml
 
@@ -176,6 +183,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def sample(self, scene, sampler, ray, medium=None, active=True):
         features = inspect_scene(scene, specialize=self.specialize)
         self.features = features
+        self.bounds = ErrorBounds(scene)
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
         if self.max_depth >= 1 and features.delta_flags:
@@ -218,9 +226,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         if any(self.ambient_value):
             L += beta * self.m_ambient * bsdf.eval_diffuse_reflectance(si, shade)
 
+        offset = self.bounds.hit_offset(si, shade)      # from the hit's error bound, for every ray it spawns
         if features.emitters and features.smooth:
             lit = shade & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            L += beta * self._direct(scene, sampler, si, bsdf, lit, features)
+            L += beta * self._direct(scene, sampler, si, offset, bsdf, lit, features)
 
         if not recurse:
             return L, ray, beta, depth, mi.Bool(False), hit
@@ -230,15 +239,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         bs, weight = bsdf.sample(ctx, si, sampler.next_1d(bounce), sampler.next_2d(bounce), bounce)
         beta = beta * weight
         bounce &= dr.any(weight != 0.0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        ray = self.bounds.spawn_ray(si, si.to_world(bs.wo), offset)
         return L, ray, beta, depth, bounce, hit
 
-    def _direct(self, scene, sampler, si, bsdf, active, features):
+    def _direct(self, scene, sampler, si, offset, bsdf, active, features):
         """Light reflected at ``si`` straight from the emitters, with shadow rays."""
         ctx = mi.BSDFContext()
         if features.sample_one_emitter:
-            ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), True, active)
+            ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), False, active)
             ok = active & (ds.pdf != 0.0)
+            ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, offset, ds, active=ok), ok)
             return dr.select(ok, bsdf.eval(ctx, si, si.to_local(ds.d), ok) * weight, 0.0)
         Ld = mi.Spectrum(0.0)
         for emitter in features.emitters:
@@ -248,7 +258,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 sample = sampler.next_2d(active)
             ds, weight = emitter.sample_direction(si, sample, active)
             ok = active & dr.any(weight != 0.0)
-            visible = ok & ~scene.ray_test(si.spawn_ray_to(ds.p), ok)
+            shadow_ray = self.bounds.spawn_ray_to(si, offset, ds, self.bounds.emitter_bound_of(emitter), ok)
+            visible = ok & ~scene.ray_test(shadow_ray, ok)
             f = bsdf.eval(ctx, si, si.to_local(ds.d), visible)
             Ld += dr.select(visible, f * weight, 0.0)
         return Ld
