@@ -32,7 +32,8 @@ from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "error_maps", "FLIP_MIN_LUMINANCE",
+    "Task", "RenderRecord", "render_one", "task_paths", "render_reference", "image_errors", "error_maps",
+    "FLIP_MIN_LUMINANCE",
     "run_sweep",
     "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
     "RELMSE_EPSILON", "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
