@@ -18,7 +18,46 @@ import numpy as np
 from drjit.llvm import TensorXf
 
 __all__ = ["as_tensor", "to_numpy", "TensorXf", "eager_if_shared", "check_shape", "is_uint8", "opaque_scalar",
-           "divmod_u32"]
+           "divmod_u32", "NonFiniteWarning", "replace_non_finite", "warn_non_finite"]
+
+
+class NonFiniteWarning(RuntimeWarning):
+    """NaN or infinite input values were replaced (NaN -> 0, +inf -> white, -inf -> 0)."""
+
+
+def replace_non_finite(values: Any, white: Any, counter: Any = None) -> tuple[Any, Any]:
+    """The imaging rule for non-finite input: NaN -> 0, +inf -> ``white``, -inf -> 0.
+
+    Returns ``(clean values, counter)``: a one-entry ``UInt32`` array that the replaced
+    values are added to (pass ``counter`` to add to an existing one; lazy until evaluated,
+    see :func:`warn_non_finite`).
+
+    Examples
+    --------
+    >>> from drjit.llvm import Float
+    >>> clean, n = replace_non_finite(Float([1.0, float("nan"), float("inf"), -float("inf")]), 255.0)
+    >>> clean.numpy().tolist(), int(n[0])
+    ([1.0, 0.0, 255.0, 0.0], 3)
+    """
+    from drjit.llvm import UInt32
+
+    bad = ~dr.isfinite(values)
+    count = dr.zeros(UInt32, 1) if counter is None else counter
+    dr.scatter_add(count, 1, UInt32(0), active=bad)
+    return dr.select(bad, dr.select(values > 0, white, 0.0), values), count
+
+
+def warn_non_finite(result: Any, counter: Any, where: str, stacklevel: int = 4) -> Any:
+    """Evaluate ``result`` with ``counter`` (:func:`replace_non_finite`); one :class:`NonFiniteWarning`
+    giving the count when values were replaced. Returns ``result``."""
+    import warnings
+
+    dr.eval(result, counter)
+    n = int(counter[0])
+    if n:
+        warnings.warn(f"{where}: replaced {n} non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)",
+                      NonFiniteWarning, stacklevel=stacklevel)
+    return result
 
 
 def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | None = None,

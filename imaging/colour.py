@@ -19,9 +19,13 @@ Function           Domain                     Range
 ``srgb_decode``    encoded [0, 1]              linear [0, 1]
 =================  =========================  ================================
 
-Non-finite input: NaN is read as 0 everywhere. In ``rgb_to_hsv`` and
-``hsv_to_rgb`` infinities are clamped to +-1e30 (so H and S stay defined); the
-sRGB curves map +inf to +inf and -inf to -inf (the linear segment).
+Non-finite input follows the rule of every imaging function (as in
+:mod:`pointillist.imaging.tone`): NaN becomes 0, +inf becomes white
+(``max_value``: 1 by default, 255 for 0..255 intensities), -inf becomes 0, and
+one :class:`~pointillist.imaging.arrays.NonFiniteWarning` gives the count. In
+``hsv_to_rgb`` the rule applies per channel with white = 0 for H (360 wrapped),
+1 for S and ``max_value`` for V. The per-value helpers (``*_values``) only read
+NaN as 0 where they say so.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
-from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, replace_non_finite, warn_non_finite
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -59,9 +63,6 @@ SRGB_SLOPE = 12.92
 SRGB_SCALE = 1.055
 SRGB_OFFSET = 0.055
 SRGB_EXPONENT = 2.4
-
-#: Magnitude that infinities are clamped to in the HSV conversions.
-_HUGE = 1e30
 
 
 def _rgb_tensor(image: Any, name: str = "image") -> TensorXf:
@@ -124,9 +125,25 @@ def _map_pixels(tensor: TensorXf, function: Callable[[Float, Float, Float], Trip
     return TensorXf(Float(np.asarray(out).view(np.float32)), tensor.shape)
 
 
-def _finite(values: Float) -> Float:
-    """NaN -> 0, +-inf -> +-1e30."""
-    return dr.select(dr.isnan(values), 0.0, dr.clip(values, -_HUGE, _HUGE))
+def _white(max_value: Any) -> float:
+    """``max_value`` checked: the value of white (+inf becomes it)."""
+    if isinstance(max_value, (bool, np.bool_)) or not isinstance(max_value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"max_value: expected a number, got {type(max_value).__name__} {max_value!r}")
+    if not (np.isfinite(max_value) and max_value > 0):
+        raise ValueError(f"max_value: expected a finite number > 0, got {max_value}")
+    return float(max_value)
+
+
+def _clean_rgb(white: float, counter: list) -> Callable[[Float, Float, Float], Triple]:
+    """R, G, B -> the same with the non-finite rule applied, counted in ``counter[0]``."""
+    def clean(r: Float, g: Float, b: Float) -> Triple:
+        out = []
+        for c in (r, g, b):
+            c, counter[0] = replace_non_finite(c, white, counter[0])
+            out.append(c)
+        return tuple(out)
+
+    return clean
 
 
 def hsv_from_rgb_values(r: Float, g: Float, b: Float) -> tuple[Float, Float, Float]:
@@ -185,13 +202,15 @@ def rgb_from_hsv_values(h: Float, s: Float, v: Float) -> tuple[Float, Float, Flo
 
 
 @eager_if_shared
-def rgb_to_hsv(image: Any) -> TensorXf:
+def rgb_to_hsv(image: Any, *, max_value: float = 1.0) -> TensorXf:
     """Convert an RGB image to HSV (hue in degrees, saturation, value).
 
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W, 3)
         RGB values, usually 0..1 (0..255 works too: V keeps the input's units).
+    max_value : float
+        White, which +inf becomes (NaN and -inf become 0, with one ``NonFiniteWarning``).
 
     Returns
     -------
@@ -214,11 +233,14 @@ def rgb_to_hsv(image: Any) -> TensorXf:
     [[[30.0, 1.0, 1.0]]]
     """
     tensor = _rgb_tensor(image)
-    return _map_pixels(tensor, lambda r, g, b: hsv_from_rgb_values(_finite(r), _finite(g), _finite(b)))
+    counter: list = [None]
+    clean = _clean_rgb(_white(max_value), counter)
+    result = _map_pixels(tensor, lambda r, g, b: hsv_from_rgb_values(*clean(r, g, b)))
+    return warn_non_finite(result, counter[0], "rgb_to_hsv")
 
 
 @eager_if_shared
-def hsv_to_rgb(image: Any) -> TensorXf:
+def hsv_to_rgb(image: Any, *, max_value: float = 1.0) -> TensorXf:
     """Convert an HSV image (hue in degrees) back to RGB.
 
     Parameters
@@ -226,6 +248,9 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W, 3)
         H in degrees (any value: wrapped modulo 360, so 360 is 0 and -60 is
         300), S in [0, 1] (not clipped), V in the RGB units wanted.
+    max_value : float
+        White: +inf in V becomes it (in S, 1; in H, 0 = 360); NaN and -inf become 0, with
+        one ``NonFiniteWarning``.
 
     Returns
     -------
@@ -241,11 +266,21 @@ def hsv_to_rgb(image: Any) -> TensorXf:
     [[[0.0, 0.0, 0.5]]]
     """
     tensor = _rgb_tensor(image)
-    return _map_pixels(tensor, lambda h, s, v: rgb_from_hsv_values(_finite(h), _finite(s), _finite(v)))
+    white = _white(max_value)
+    counter: list = [None]
+
+    def convert(h: Float, s: Float, v: Float) -> Triple:
+        h, counter[0] = replace_non_finite(h, 0.0, counter[0])
+        s, counter[0] = replace_non_finite(s, 1.0, counter[0])
+        v, counter[0] = replace_non_finite(v, white, counter[0])
+        return rgb_from_hsv_values(h, s, v)
+
+    return warn_non_finite(_map_pixels(tensor, convert), counter[0], "hsv_to_rgb")
 
 
 @eager_if_shared
-def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: float = 1.0) -> TensorXf:
+def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: float = 1.0,
+               max_value: float = 1.0) -> TensorXf:
     """Shift the hue and scale the saturation and value of an RGB image (through HSV).
 
     Parameters
@@ -258,6 +293,8 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
         >= 0, factor on S; the result is clipped to S <= 1 (0 gives grey).
     value : float
         >= 0, factor on V (not clipped: display steps clip when writing).
+    max_value : float
+        White, which +inf becomes (NaN and -inf become 0, with one ``NonFiniteWarning``).
 
     Returns
     -------
@@ -291,15 +328,18 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
             raise ValueError(f"{name}: expected a factor >= 0, got {number}")
         checked.append(dr.opaque(Float, number))
     shift, s_scale, v_scale = checked
+    counter: list = [None]
+    clean = _clean_rgb(_white(max_value), counter)
+
     def adjust(r: Float, g: Float, b: Float) -> Triple:
-        h, s, v = hsv_from_rgb_values(_finite(r), _finite(g), _finite(b))
+        h, s, v = hsv_from_rgb_values(*clean(r, g, b))
         return rgb_from_hsv_values(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
 
-    return _map_pixels(_rgb_tensor(image), adjust)
+    return warn_non_finite(_map_pixels(_rgb_tensor(image), adjust), counter[0], "adjust_hsv")
 
 
 @eager_if_shared
-def luminance(image: Any) -> TensorXf:
+def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
     """Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B.
 
     Parameters
@@ -307,11 +347,14 @@ def luminance(image: Any) -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W), (H, W, 1) or (H, W, 3)
         Linear RGB (on display-encoded values this gives luma, the usual
         "convert to grey"). Grey input is returned unchanged as (H, W).
+    max_value : float
+        White, which +inf components become.
 
     Returns
     -------
     drjit.llvm.TensorXf
-        (H, W). NaN components count as 0.
+        (H, W). NaN and -inf components count as 0, +inf as ``max_value``, with one
+        ``NonFiniteWarning``.
 
     Examples
     --------
@@ -321,13 +364,16 @@ def luminance(image: Any) -> TensorXf:
     [[1.0, 1.0]]
     """
     tensor = as_tensor(image, channels=(1, 3))
+    white = _white(max_value)
     height, width = tensor.shape[:2]
     if tensor.ndim == 2 or tensor.shape[2] == 1:
-        return TensorXf(dr.select(dr.isnan(tensor.array), 0.0, tensor.array), (height, width))
+        grey, counter = replace_non_finite(tensor.array, white)
+        return warn_non_finite(TensorXf(grey, (height, width)), counter, "luminance")
+    counter: list = [None]
     rgb = dr.unravel(Array3f, tensor.array)
+    r, g, b = _clean_rgb(white, counter)(rgb.x, rgb.y, rgb.z)
     wr, wg, wb = REC709_LUMINANCE_WEIGHTS
-    y = wr * rgb.x + wg * rgb.y + wb * rgb.z
-    return TensorXf(dr.select(dr.isnan(y), 0.0, y), (height, width))
+    return warn_non_finite(TensorXf(wr * r + wg * g + wb * b, (height, width)), counter[0], "luminance")
 
 
 def srgb_encode_values(values: Float) -> Float:
@@ -362,8 +408,8 @@ def srgb_encode(image: Any) -> TensorXf:
     drjit.llvm.TensorXf
         Same shape, encoded values (0 -> 0, 1 -> 1). Outside 0..1 the curve
         is extended as colour-science does: negative values stay on the linear
-        segment, values above 1 follow the power segment (+inf stays +inf).
-        NaN becomes 0.
+        segment, values above 1 follow the power segment. NaN and -inf become 0,
+        +inf white (1), with one ``NonFiniteWarning``.
 
     Examples
     --------
@@ -373,7 +419,8 @@ def srgb_encode(image: Any) -> TensorXf:
     [[0.0, 0.4614, 1.0]]
     """
     tensor = as_tensor(image)
-    return TensorXf(srgb_encode_values(tensor.array), tensor.shape)
+    clean, counter = replace_non_finite(tensor.array, 1.0)
+    return warn_non_finite(TensorXf(srgb_encode_values(clean), tensor.shape), counter, "srgb_encode")
 
 
 @eager_if_shared
@@ -391,8 +438,8 @@ def srgb_decode(image: Any) -> TensorXf:
     Returns
     -------
     drjit.llvm.TensorXf
-        Same shape, linear values; negative values stay on the linear segment,
-        NaN becomes 0.
+        Same shape, linear values; negative values stay on the linear segment.
+        NaN and -inf become 0, +inf white (1), with one ``NonFiniteWarning``.
 
     Examples
     --------
@@ -402,4 +449,5 @@ def srgb_decode(image: Any) -> TensorXf:
     [[0.0, 0.214, 1.0]]
     """
     tensor = as_tensor(image)
-    return TensorXf(srgb_decode_values(tensor.array), tensor.shape)
+    clean, counter = replace_non_finite(tensor.array, 1.0)
+    return warn_non_finite(TensorXf(srgb_decode_values(clean), tensor.shape), counter, "srgb_decode")

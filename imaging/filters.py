@@ -15,20 +15,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float
+from drjit.llvm import Bool, Float, UInt32
 
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
                                                select_max, select_min, window_apply, window_result)
+from pointillist.imaging.rank import radix_median
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
     "LAPLACIAN", "KERNELS", "BORDERS", "correlate", "normalize", "sobel", "prewitt",
-    "laplacian", "zero_crossings", "threshold", "median",
+    "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_NETWORK_MAX_SIZE", "MEDIAN_MAX_LOADS",
 ]
 
 # --- Kernel constants (SPEC "Imaging definitions", cross-correlation) -------------------------
@@ -198,8 +200,9 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
 
 
 @eager_if_shared
-def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
-    """Min-max normalise to 0..255 over the whole image (SPEC): ``(|I| - min) * 255 / (max - min)``.
+def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] = 0) -> TensorXf:
+    """Min-max normalise to 0..255 (SPEC): ``(|I| - min) * 255 / (max - min)``, min and max over the
+    computed pixels.
 
     Parameters
     ----------
@@ -208,6 +211,13 @@ def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     absolute : bool
         Make negative values positive first (absolute value), as the SPEC asks for
         correlation results (default True). With False the signed values are stretched.
+    ring : int or (int, int)
+        Width ``r`` or ``(ry, rx)`` of a border ring that was not computed: the ring a
+        window operation with ``border="zero"`` (or ``"keep"``) leaves, ``ry = kh // 2`` rows
+        and ``rx = kw // 2`` columns on each side (1 for the 3x3 kernels). The ring's
+        pixels do not count in min and max and are returned as they are, so
+        ``normalize(correlate(img, k), ring=1)`` equals ``correlate(img, k, normalize=True)``
+        (default 0: every pixel counts, as for any image).
 
     Returns
     -------
@@ -231,15 +241,40 @@ def normalize(image: Any, *, absolute: bool = True) -> TensorXf:
     >>> from pointillist.imaging.filters import normalize
     >>> np.asarray(normalize(np.array([[-2.0, 1.0], [3.0, 5.0]]))).tolist()
     [[63.75, 0.0], [127.5, 255.0]]
+    >>> img = np.zeros((5, 5)); img[2, 2] = 1.0      # the course's 5x5 example, Gaussian then normalise
+    >>> np.asarray(normalize(correlate(img, GAUSSIAN_3), ring=1))[1:4, 1:4].tolist()
+    [[0.0, 63.75, 0.0], [63.75, 255.0, 63.75], [0.0, 63.75, 0.0]]
     """
     if not isinstance(absolute, (bool, np.bool_)):
         raise TypeError(f"absolute: expected a bool, got {type(absolute).__name__}")
+    ry, rx = _check_ring(ring)
     tensor = as_tensor(image)
     values = dr.abs(tensor.array) if absolute else tensor.array
     dr.eval(values)
-    out = _rescale(values, finite_extrema(values), None, None)
-    out = dr.select(values == -math.inf, 0.0, out)
+    inside = None
+    if ry or rx:
+        H, W = tensor.shape[0], tensor.shape[1]
+        C = tensor.shape[2] if tensor.ndim == 3 else 1
+        pixel = dr.arange(UInt32, H * W * C) // C
+        y, x = pixel // W, pixel % W
+        inside = (y >= ry) & (y + ry < H) & (x >= rx) & (x + rx < W)
+        counted = dr.select(inside, values, math.nan)   # NaN is left out of min/max
+        dr.eval(counted)
+        bounds = finite_extrema(counted)
+    else:
+        bounds = finite_extrema(values)
+    out = _rescale(values, bounds, inside, tensor.array if inside is not None else None)
+    out = dr.select(values == -math.inf, 0.0, out) if inside is None else \
+        dr.select(inside & (values == -math.inf), 0.0, out)
     return TensorXf(out, tensor.shape)
+
+
+def _check_ring(ring: Any) -> tuple[int, int]:
+    values = ring if isinstance(ring, (tuple, list)) else (ring, ring)
+    if len(values) != 2 or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))
+                               or v < 0 for v in values):
+        raise ValueError(f"ring: expected a width >= 0 or (rows, columns), got {ring!r}")
+    return int(values[0]), int(values[1])
 
 
 def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, components: bool):
@@ -478,6 +513,15 @@ def _median_network(values: list[Float]) -> Float:
     return wires[n // 2]
 
 
+#: The largest window :func:`median` sorts with a network (9x9: 81 values through a Batcher network,
+#: about 2 s to compile the first time); larger windows use radix selection.
+MEDIAN_NETWORK_MAX_SIZE = 9
+
+#: The most key loads one radix-selection median may take (32 x window values x image values for
+#: float data): about half a minute here. Larger requests are refused.
+MEDIAN_MAX_LOADS = 2**34
+
+
 def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     """Median filter: the ``size`` x ``size`` window sorted, the middle value replaces the centre (SPEC).
 
@@ -491,7 +535,14 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Channels are filtered independently.
     size : int
-        Odd window size (1 returns the image).
+        Odd window size (1 returns the image). Up to :data:`MEDIAN_NETWORK_MAX_SIZE` (9) the
+        sorting network below; above, radix selection (:mod:`pointillist.imaging.rank`):
+        the network grows as n log^2 n in the n = size^2 values and is compiled as one
+        kernel (measured on 32x32, first call: 9 -> 2.2 s, 15 -> 10 s, 31 -> 25 s, 63 never
+        finished), the selection's kernel does not grow (8 or 32 loads per window value:
+        256x256 8-bit at 63x63 in 3.7 s, float at 31x31 in 3.6 s, here). A call needing more
+        than :data:`MEDIAN_MAX_LOADS` loads is refused with a ValueError. A window larger
+        than the image is defined by the border mode (``"crop"`` refuses it: nothing is left).
     border : str
         As in :func:`correlate`; the default ``"clamp"`` matches ``cv2.medianBlur``
         (the course only defines border handling for correlation).
@@ -518,6 +569,16 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     border = check_border(border)
     tensor = as_tensor(image)
     r = size // 2
+    if size > MEDIAN_NETWORK_MAX_SIZE:
+        loads = 32 * size * size * int(np.prod(tensor.shape))
+        if loads > MEDIAN_MAX_LOADS:
+            raise ValueError(f"size: a {size}x{size} median of a {'x'.join(map(str, tensor.shape))} image needs up to "
+                             f"{loads:.3g} loads, more than {MEDIAN_MAX_LOADS:.3g} (MEDIAN_MAX_LOADS, about half a "
+                             "minute); use a smaller window")
+        values, _ = radix_median(tensor, size, border)
+        shape = tuple(tensor.shape)
+        frame = SimpleNamespace(shape=shape, H=shape[0], W=shape[1], ry=r, rx=r)  # what window_result reads
+        return window_result(values, frame, border)
     if r == 0:   # the identity, as a copy: numpy input shares the caller's memory
         values = Float(tensor.array) if dr.is_array_v(image) else Float(np.array(tensor.array, dtype=np.float32))
         return window_result(values, Window(tensor, 0, 0), border)

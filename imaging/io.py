@@ -17,6 +17,8 @@ PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
 from __future__ import annotations
 
 import os
+import signal
+import sys
 import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -68,7 +70,11 @@ def _file_id(path: str | os.PathLike) -> tuple[int, int] | None:
 
 def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = (),
                       name: str = "path") -> Path:
-    """Check that ``path`` may be written: its folder exists, it is not an input.
+    """Check that ``path`` may be written: its folder exists and takes new files, it is not an input.
+
+    Writability is probed by creating (and removing) a temporary file in the folder: permission
+    bits do not tell for root, an immutable folder or ``/proc``. Commands call this before their
+    work, so that an output that cannot be written fails first.
 
     Raises ValueError naming ``name``.
     """
@@ -77,6 +83,11 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
         raise ValueError(f"{name}: {path} is a directory, expected a file name")
     if not path.parent.exists():
         raise ValueError(f"{name}: folder {path.parent} does not exist")
+    try:
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as error:
+        raise ValueError(f"{name}: cannot write {path} ({error.strerror or error})") from None
     target = _file_id(path)
     if target is not None:
         ids = set(_INPUTS)
@@ -90,21 +101,49 @@ def atomic_write(path: str | os.PathLike, write) -> None:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``.
 
     The one way this project writes files: a reader never sees a half-written file, and a
-    failed write leaves the old file (if any) and no temporary file behind.
+    failed or interrupted write (an exception, Ctrl-C, SIGTERM under ``pointillist``) leaves
+    the old file (if any) and no temporary file behind. A folder that cannot be written
+    raises the ``OSError`` (e.g. ``PermissionError``) with ``filename`` the target and a
+    message naming it.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = None
     try:
+        # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that the
+        # KeyboardInterrupt they raise (see pointillist.cli) always finds `tmp` set and removes the file.
+        held = _hold_signals()
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+        except OSError as error:
+            raise type(error)(error.errno, f"cannot write {path}: {error.strerror or error}", str(path)) from None
+        finally:
+            _release_signals(held)
+        os.close(fd)
         write(tmp)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
         raise
+
+
+_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
+
+
+def _hold_signals():
+    """Block SIGINT and SIGTERM in this thread (POSIX); returns the mask to restore."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+
+
+def _release_signals(mask) -> None:
+    if mask is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def read_exr(path: str | os.PathLike) -> EXRImage:
@@ -141,12 +180,21 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"path: no such EXR file: {path}")
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            header = dict(exr.header())
-            channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
-    except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
-        raise ValueError(f"path: {path} is not a readable EXR file ({error})") from None
+    with _OutputCapture() as captured:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as exr:
+                header = dict(exr.header())
+                channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+        except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
+            failure = error
+        else:
+            failure = None
+    if failure is not None:
+        # OpenEXR prints its own diagnosis (captured): its first line says more than the exception.
+        lines = [line.removeprefix(f"{path}: ").strip() for line in captured.text.splitlines() if line.strip()]
+        detail = next((line for line in lines if not line.startswith("Warning:")), None) or str(failure)
+        raise ValueError(f"path: {path} is not a readable EXR file ({detail})") from None
+    captured.replay()
     if not channels:
         raise ValueError(f"path: {path} holds no channels")
     _INPUTS.add(_file_id(path))
@@ -164,6 +212,52 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
         raise ValueError(f"path: {path} has no Y or RGB channels (has {sorted(channels)})")
     metadata = {k: _plain(v) for k, v in header.items() if k not in _RESERVED}
     return EXRImage(np.ascontiguousarray(image), metadata, channels)
+
+
+class _OutputCapture:
+    """Capture what C++ libraries write to file descriptors 1 and 2 inside the block (OpenEXR prints
+    its diagnostics there, some on stdout).
+
+    ``text`` holds both afterwards; :meth:`replay` writes them back where they were going (when
+    they were not an error's).
+    """
+
+    def __enter__(self):
+        self._saved = []
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        for fd in (1, 2):
+            try:
+                saved = os.dup(fd)
+            except OSError:  # a closed descriptor: nothing to capture
+                continue
+            capture = tempfile.TemporaryFile()
+            self._saved.append((fd, saved, capture))
+            os.dup2(capture.fileno(), fd)
+        return self
+
+    def __exit__(self, *exc):
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        self.parts = []
+        for fd, saved, capture in self._saved:
+            os.dup2(saved, fd)
+            os.close(saved)
+            capture.seek(0)
+            self.parts.append(capture.read().decode(errors="replace"))
+            capture.close()
+        return False
+
+    @property
+    def text(self) -> str:
+        return "".join(self.parts)
+
+    def replay(self) -> None:
+        for (fd, _, _), text in zip(self._saved, self.parts):
+            stream = sys.stdout if fd == 1 else sys.stderr
+            if text:
+                stream.write(text)
+                stream.flush()
 
 
 def _plain(value: Any) -> Any:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RELMSE_EPSILON", "image_errors", "error_maps"]
+__all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "image_errors", "error_maps"]
 
 #: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
 RELMSE_EPSILON = 0.01
@@ -33,6 +33,13 @@ RELMSE_EPSILON = 0.01
 
 # ----------------------------------------------------------------------------- errors
 # ----------------------------------------------------------------------------- errors
+#: HDR-FLIP's exposure range runs from log2(x / max Y) to log2(x / max(median Y, FLT_EPSILON)) (Y the
+#: reference's luminance, Rec. 709 weights): flip-evaluator exits the process when the start exceeds the
+#: stop, which happens for every reference whose max Y is below FLT_EPSILON (measured: one pixel of 1e-30
+#: on black). Below twice that, :func:`_flip_exposures` passes the exposure itself.
+FLIP_MIN_LUMINANCE = 2.0 * float(np.finfo(np.float32).eps)
+
+
 def _rgb(image: np.ndarray) -> np.ndarray:
     image = np.asarray(image, dtype=np.float64)
     if image.ndim == 2:
@@ -47,7 +54,9 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
     - ``relmse = mean((x - r)^2 / (r^2 + 0.01))`` (:data:`RELMSE_EPSILON`);
     - ``flip``: mean HDR-FLIP (flip-evaluator, linear sRGB input, default viewing
-      conditions), NaN values and negatives set to 0 first.
+      conditions), NaN values and negatives set to 0 first. Where flip-evaluator would
+      exit the process (a black, constant or nearly black reference) the exposure is
+      passed explicitly (:func:`_flip_exposures`), so every reference gets a value.
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
     reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
@@ -99,6 +108,8 @@ def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndar
     x, r = _rgb(image), _rgb(reference)
     if x.shape != r.shape:
         raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
+    if r.ndim != 3 or r.size == 0:
+        raise ValueError(f"reference: expected a non-empty (H, W) or (H, W, C) image, got shape {r.shape}")
     return x, r
 
 
@@ -123,10 +134,12 @@ def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
     when rounding puts start above stop (a constant reference of 1e-7) or the reference is black.
     In those cases (median luminance = maximum) both are passed explicitly as the one exposure
     log2(x_max / Y_max) (0 for a black reference), which is what flip-evaluator uses when they tie.
+    So are references whose maximum is below :data:`FLIP_MIN_LUMINANCE` (the median is taken
+    as at least FLT_EPSILON there: one pixel of 1e-30 on black exited the process too).
     """
     luminance = reference @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     y_max, y_median = float(luminance.max()), float(np.median(luminance))
-    if y_median < y_max * (1 - 1e-5):
+    if y_median < y_max * (1 - 1e-5) and y_max >= FLIP_MIN_LUMINANCE:
         return {}
     exposure = math.log2(_FLIP_ACES_X_MAX / y_max) if y_max > 0 else 0.0
     return {"parameters": {"startExposure": exposure, "stopExposure": exposure}}

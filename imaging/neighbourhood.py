@@ -23,7 +23,9 @@ columns on each side) are then handled by the border mode:
 ================  ==============================================  =========================  ========================
 
 ``reflect`` follows scipy's ``"reflect"`` = OpenCV's ``BORDER_REFLECT`` (the
-edge pixel is repeated); ``mirror`` is the other convention. Reflection and
+edge pixel is repeated); ``mirror`` is the other convention. ``BORDER_WRAP`` names
+OpenCV's equivalent of ``wrap`` for ``cv2.copyMakeBorder``; ``cv2.filter2D`` refuses it
+(an assertion, ``columnBorderType != BORDER_WRAP``): pad with ``copyMakeBorder`` first. Reflection and
 wrapping repeat as often as needed, so a window larger than the image is fine.
 For the padded modes the ring's taps are gathered on the host into small arrays
 and pass through the same Dr.Jit combination code, then are scattered into the

@@ -16,8 +16,11 @@ Downscaling does not low-pass filter first (like OpenCV's INTER_LINEAR and
 INTER_CUBIC; it aliases).
 
 - nearest: the pixel whose centre is nearest (ties go to the right/lower pixel):
-  ``floor(src + 0.5)``; for resize this is ``floor((dst + 0.5) * scale)``,
-  OpenCV's ``INTER_NEAREST_EXACT``.
+  ``floor(src + 0.5)``; for resize this is ``floor((dst + 0.5) * scale)``, computed
+  exactly in integers. It is the formula of OpenCV's ``INTER_NEAREST_EXACT``, but OpenCV
+  evaluates it in fixed point and picks the other pixel at some exact ties: 201 of the
+  1521 (input, output) width pairs in 1..39 differ (14 -> 5 pixels: output 2 sits at
+  source 7.0 exactly; this takes pixel 7).
 - bilinear: ``v = v1 + (v2 - v1)(x - x1)/(x2 - x1)`` in x, then the same in y.
 - bicubic: Keys' cubic convolution kernel (R. Keys, "Cubic convolution
   interpolation for digital image processing", IEEE TASSP 29(6), 1981) with
@@ -41,12 +44,16 @@ from drjit.llvm import Float, Int32, UInt32, UInt64
 
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
-__all__ = ["INTERPOLATIONS", "KEYS_A", "keys_kernel", "resize", "sample"]
+__all__ = ["INTERPOLATIONS", "KEYS_A", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
 
 #: The interpolation methods.
 INTERPOLATIONS = ("nearest", "bilinear", "bicubic")
 #: Keys' recommended kernel parameter (Keys 1981); OpenCV's INTER_CUBIC uses -0.75.
 KEYS_A = -0.5
+
+#: The most values (height x width x channels, output or bicubic's intermediate) :func:`resize`
+#: makes: its index arithmetic is 32-bit signed, and Dr.Jit arrays stop at 2^32 entries.
+MAX_RESIZE_VALUES = 2**31 - 1
 
 
 def _check_method(method: Any) -> str:
@@ -148,7 +155,8 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
     size : (int, int)
-        Output width and height (like ``cv2.resize``'s ``dsize``), both >= 1.
+        Output width and height (like ``cv2.resize``'s ``dsize``), both >= 1, with
+        width x height x channels at most :data:`MAX_RESIZE_VALUES` (ValueError otherwise).
     method : {"nearest", "bilinear", "bicubic"}
     a : float
         Keys' parameter for bicubic (default -0.5; -0.75 reproduces OpenCV's INTER_CUBIC).
@@ -192,6 +200,7 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
     tensor = as_tensor(image)
     H, W = tensor.shape[0], tensor.shape[1]
     C = tensor.shape[2] if tensor.ndim == 3 else 1
+    _check_resize_size(width, height, C, H if method == "bicubic" else 0)
     out_shape = (height, width) + ((C,) if tensor.ndim == 3 else ())
     a_value = dr.opaque(Float, a)
     if method == "bicubic":
@@ -214,6 +223,15 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
         out = _interpolate_2d(tensor.array, H, W, C, x, y, channel, method, a_value, clamp)
     dr.eval(out)
     return TensorXf(out, out_shape)
+
+
+def _check_resize_size(width: int, height: int, channels: int, rows_in: int) -> None:
+    """ValueError unless the output (and bicubic's (rows_in, width) first pass) holds at most
+    :data:`MAX_RESIZE_VALUES` values."""
+    for count in (height * width * channels, rows_in * width * channels):
+        if count > MAX_RESIZE_VALUES:
+            raise ValueError(f"size: {width}x{height} with {channels} channel(s) needs {count} values, more "
+                             f"than one resize produces ({MAX_RESIZE_VALUES} = 2^31 - 1)")
 
 
 def _nearest_index(out: UInt32, n_in: int, n_out: int) -> UInt32:

@@ -371,7 +371,7 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
     try:
         data, header = nrrd.read(str(path), index_order="C")
     except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, ValueError, OSError...
-        raise ValueError(f"volume: {path}: not a readable NRRD file ({error})") from None
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({error or type(error).__name__})") from None
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NRRD, got {data.ndim} dimensions")
     meta = {"format": "nrrd"}

@@ -1,8 +1,9 @@
 """The ``pointillist`` command line.
 
-Sub-commands are the modules of :mod:`pointillist.commands`. Bad input exits
-with status 2 and one line on stderr, never a traceback (set
-``POINTILLIST_DEBUG=1`` to see one for an unexpected error).
+Sub-commands are the modules of :mod:`pointillist.commands`. Bad input (and a
+file or folder that cannot be read or written) exits with status 2 and one line
+on stderr, never a traceback (set ``POINTILLIST_DEBUG=1`` to see one for an
+unexpected error). Ctrl-C exits with 130, SIGTERM with 143.
 """
 
 from __future__ import annotations
@@ -11,10 +12,12 @@ import argparse
 import importlib
 import os
 import pkgutil
+import signal
 import sys
+import threading
 
 from pointillist import __version__
-from pointillist.errors import UsageError
+from pointillist.errors import Terminated, UsageError
 
 __all__ = ["main", "build_parser"]
 
@@ -50,18 +53,47 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+def _os_message(error: OSError) -> str:
+    """One line for an OSError: its message, and the path when the message does not name it."""
+    text = error.strerror or str(error)
+    name = error.filename
+    if name is not None and str(name) not in text:
+        text = f"{text}: {name}"
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+    """Run the command line; returns the exit status.
+
+    SIGTERM is handled like Ctrl-C (while the command runs, in the main thread): the
+    :class:`~pointillist.errors.Terminated` it raises unwinds the command, removing any
+    temporary file, and the status is 143 (130 for Ctrl-C), with one line on stderr.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
+    installed = threading.current_thread() is threading.main_thread()
+    if installed:
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args._run(args) or 0)
     except UsageError as error:
         print(f"pointillist {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"pointillist {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"pointillist {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as error:  # a file or folder that cannot be read or written
+        if os.environ.get("POINTILLIST_DEBUG"):
+            raise
+        print(f"pointillist {args.command}: error: {_os_message(error)}", file=sys.stderr)
+        return 2
     except Exception as error:  # noqa: BLE001 - the one place that turns errors into exit codes
         from pointillist.llvm import LLVMNotFoundError
 
@@ -76,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pointillist {args.command}: internal error: {type(error).__name__}: {error} "
               "(POINTILLIST_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+    finally:
+        if installed:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 if __name__ == "__main__":  # pragma: no cover

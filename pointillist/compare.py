@@ -368,6 +368,9 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
     With ``report``, ``out_dir/report.html`` (:mod:`pointillist.compare_html`) is
     written too, from every render of the sweep on disk (also those of earlier,
     interrupted runs); ``paths["html"]`` is its path and ``notes`` say its size.
+    ``notes`` (also given to ``log`` and listed in results.md) also say which
+    reconstruction filter the film uses (only a box filter makes a pixel the plain
+    average of its samples) and when the reference took another spp than asked.
 
     Raises
     ------
@@ -376,25 +379,28 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         count Mitsuba cannot take, or a reference of the wrong size.
     """
     from pointillist.compare_report import write_report
-    from pointillist.scene import check_sample_count
+    from pointillist.scene import check_sample_count, check_scene_file, filter_note
 
     params = dict(params or {})
     tasks = sweep_tasks(methods, spp, seeds)
-    scene = Path(scene)
-    if not scene.is_file():
-        raise UsageError(f"scene: no such file: {scene}")
+    scene = check_scene_file(scene)
     out = Path(out_dir) if out_dir else Path("out") / "compare" / scene.stem
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out: {out} exists and is not a folder")
     if reference is not None and not Path(reference).is_file():
         raise UsageError(f"--reference: no such file: {reference}")
-    size = _scene_size(scene, params)
+    size, rfilter = _scene_size(scene, params)
     for count in [t.value for t in tasks if sweep_parameter(t.method) == "spp"] + (
             [] if reference else [reference_spp]):
         check_sample_count(*size, int(count))  # before any render starts (and its progress bar)
     if reference is not None:
         _check_reference(Path(reference), size)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"--out: cannot create the folder {out} ({error.strerror or error})") from None
+    notes: list[str] = [filter_note(rfilter)]
+    log(notes[0])
     cluster_renders = 0
     if workers or scheduler:
         with open_client(workers, scheduler) as client:
@@ -408,12 +414,17 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
         reference = render_reference(str(scene), params, str(out), reference_spp)
         _check_reference(reference, size)
+        taken = _reference_spp(reference)
+        if taken is not None and taken != reference_spp:
+            note = (f"reference: the stratified sampler took {taken} spp for the {reference_spp} asked "
+                    "(it rounds up to a square)")
+            notes.append(note)
+            log(note)
     maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
     records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
                         log=log, maps=maps)
     title = f"Sampler comparison: {scene.name}"
-    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title)
-    notes = []
+    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
     if report:
         from pointillist.compare_html import write_html_report
 
@@ -424,15 +435,24 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                          cluster_renders=cluster_renders, notes=notes)
 
 
-def _scene_size(scene: Path, params: dict) -> tuple[int, int]:
-    """``(width, height)`` the scene renders (loads it once: bad scenes fail before any render)."""
+def _reference_spp(reference: Path) -> int | None:
+    """The samples per pixel a rendered reference took (its EXR header), or None."""
+    from pointillist.imaging.io import read_exr
+
+    value = read_exr(reference).metadata.get("spp")
+    return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def _scene_size(scene: Path, params: dict) -> tuple[tuple[int, int], str]:
+    """``((width, height), film filter)`` of the scene (loads it once: bad scenes fail before any render)."""
     import pointillist
 
     pointillist.setup()
-    from pointillist.scene import load_scene, scene_info
+    from pointillist.scene import film_filter, load_scene, scene_info
 
-    info = scene_info(load_scene(scene, params))
-    return info["width"], info["height"]
+    loaded = load_scene(scene, params)
+    info = scene_info(loaded)
+    return (info["width"], info["height"]), film_filter(loaded)
 
 
 def _check_reference(reference: Path, size: tuple[int, int]) -> None:

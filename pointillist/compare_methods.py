@@ -200,11 +200,9 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
     """
     import mitsuba as mi
 
-    from pointillist.scene import mitsuba_message
+    from pointillist.scene import check_scene_file, check_sensor, mitsuba_message
 
-    path = Path(scene_path)
-    if not path.is_file():
-        raise UsageError(f"scene: no such file: {path}")
+    path = check_scene_file(scene_path)
     text = configure_scene(path.read_text(), method, value)
     resolver = mi.file_resolver()
     saved = mi.FileResolver(resolver)
@@ -212,10 +210,12 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
     try:
         # parallel=False as in pointillist.scene.load_scene: the parallel loader failed about one
         # run in ten here (hdrfilm: std::bad_alloc) and orders plugins (hence kernels) randomly.
-        return mi.load_string(text, parallel=False, **(params or {}))
+        scene = mi.load_string(text, parallel=False, **(params or {}))
     except RuntimeError as error:
         raise UsageError(f"scene {path} with {method.name}: {mitsuba_message(error)}") from None
     finally:
         resolver.clear()
         for i in range(len(saved)):
             resolver.append(saved[i])
+    check_sensor(scene, path)
+    return scene

@@ -185,8 +185,11 @@ def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[
     return header, cells
 
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
-                 reference: str, title: str | None = None) -> dict[str, Path]:
-    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``."""
+                 reference: str, title: str | None = None, notes: Sequence[str] = ()) -> dict[str, Path]:
+    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``.
+
+    ``notes`` (one line each, e.g. why FLIP is NaN) are listed under the table's caption.
+    """
     from pointillist.imaging.io import atomic_write
 
     out = Path(out_dir)
@@ -213,6 +216,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
              f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
              "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
+             *[f"- {note}" for note in notes], *([""] if notes else []),
              "| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
     lines += ["| " + " | ".join(row) + " |" for row in cells]
     lines += ["", "spp: samples per pixel taken (an adaptive method's mean over the pixels). A method's first "
@@ -303,8 +307,11 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
     if x_name == "time" and xs_all and min(xs_all) < TIMING_FLOOR:
         ax.axvspan(min(xs_all) / 2, TIMING_FLOOR, color="grey", alpha=0.15, linewidth=0,
                    label=f"under {format_time(TIMING_FLOOR)}: not timed reliably")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    if xs_all:
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    else:  # every MSE 0 (a render equal to the reference, e.g. a black scene): nothing to put on log axes
+        ax.text(0.5, 0.5, "no point with MSE > 0 to plot", transform=ax.transAxes, ha="center")
     ax.set_xlabel(x_label)
     ax.set_ylabel("MSE against the reference")
     ax.grid(True, which="both", alpha=0.3)

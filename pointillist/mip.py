@@ -36,8 +36,8 @@ import numpy as np
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
-__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "patient_view", "project_volume", "mip_frame_task",
-           "project_frames", "MipResult", "render_mip"]
+__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "patient_view", "normalised_volume", "project_volume",
+           "mip_frame_task", "project_frames", "MipResult", "render_mip", "PLAIN_EXTENT", "NORMAL_EXTENT"]
 
 
 #: Named views: (right, up, forward) unit vectors in patient LPS (x = left, y = posterior,
@@ -168,6 +168,36 @@ def _along_patient_axes(axes) -> bool:
     return all(np.count_nonzero(a) == 1 for a in axes)
 
 
+#: Volumes whose box's largest side (world units) lies in [lo, hi) are projected as they are; others
+#: are scaled by a power of two (exactly) into :data:`NORMAL_EXTENT` (:func:`normalised_volume`).
+PLAIN_EXTENT = (1.0, 2.0**16)
+NORMAL_EXTENT = (64.0, 128.0)
+
+
+def normalised_volume(volume):
+    """``volume`` with its spacing scaled by a power of two when its box is very small or very large.
+
+    A projection does not depend on the volume's scale (the views are fitted to its box and the
+    step counts voxels), but float32 ray arithmetic does: a box of 1e-8 mm seen from the camera
+    distance of a 1 mm box loses every digit (a MIP of 82.6 instead of 601), and 1e30 mm overflows.
+    A box whose largest side lies outside :data:`PLAIN_EXTENT` is therefore scaled so that side
+    lies in :data:`NORMAL_EXTENT` (other volumes are returned unchanged); scaling by a power of two
+    is exact, so spacings differing by one project identically.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pointillist.imaging.volumes import Volume
+    >>> normalised_volume(Volume(np.zeros((2, 2, 4)), (1e-10, 1e-10, 2e-10))).spacing
+    (27.4877906944, 27.4877906944, 54.9755813888)
+    """
+    largest = max(volume.extent)
+    if PLAIN_EXTENT[0] <= largest < PLAIN_EXTENT[1]:
+        return volume
+    k = math.floor(math.log2(NORMAL_EXTENT[0])) - math.floor(math.log2(largest))
+    return volume.respaced(tuple(math.ldexp(s, k) for s in volume.spacing))  # directions kept
+
+
 def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, elevation: float = 0.0,
                    size=(512, 512), native: bool = False, mode: str = "mip",
                    interpolation: str = "trilinear", step: float = 0.5, perspective: float | None = None,
@@ -181,8 +211,10 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     along voxel axes after that pose (any axis-aligned acquisition, whatever its voxel
     order) keeps the one-pixel-per-voxel-column ``native`` framing and the integrator's
     column fast path. ``neurological`` mirrors the image left-right. Pass ``integrator``
-    (a ``mip`` integrator holding the volume) to reuse its texture across views.
-    Returns ``(image, integrator)``.
+    (a ``mip`` integrator holding the volume) to reuse its texture across views (the views
+    are then framed on the volume it holds). A very small or large volume is projected in a
+    rescaled frame (:func:`normalised_volume`), so that scaling the spacing uniformly does not
+    change the projection. Returns ``(image, integrator)``.
     """
     import pointillist
 
@@ -200,7 +232,8 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
         if background is not None:
             props["background"] = float(background)
         integrator = mi.load_dict(props)
-        integrator.set_volume(volume)
+        integrator.set_volume(normalised_volume(volume))
+    volume = integrator.volume
     axes = view_axes(view, azimuth, elevation)  # patient LPS
     if native and not _along_patient_axes(axes):
         raise ValueError("native-size: needs an axis-aligned view along the patient's axes (axial, coronal, "

@@ -92,7 +92,9 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     what :func:`pointillist.steps.parse_steps` returns. ``linear``: the image is linear
     light (an EXR render); a display step then gets ``tonemap:clip`` first (said in
     ``notes``). The result stays lazy (a Dr.Jit tensor) unless ``report`` asks for
-    statistics, so a chain of steps fuses where Dr.Jit can fuse it.
+    statistics, so a chain of steps fuses where Dr.Jit can fuse it. ``normalize`` after a
+    window step with the zero (or keep) border leaves that step's uncomputed ring out, as
+    ``correlate:...,normalize=true`` does (``normalize:ring=N`` overrides).
 
     Examples
     --------
@@ -112,7 +114,10 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     reports: list[tuple[str, str, dict[str, float]]] = []
     done: list[str] = []
     notes: list[str] = []
+    ring = 0  # the border ring the last window step left uncomputed (zero border), for normalize
     for spec, kwargs in pipeline:
+        if spec.name == "normalize" and "ring" not in kwargs and ring:
+            kwargs = dict(kwargs, ring=ring)
         if linear and not spec.linear:
             current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
             linear = False
@@ -123,6 +128,7 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
                              "but the image is already display-referred")
         previous = current
         current = _run_step(spec, current, kwargs, notes)
+        ring = spec.ring(kwargs) if spec.ring is not None else ring
         linear = False if spec.linear else linear
         done.append(spec.name + (":" + ",".join(f"{k}={v}" for k, v in kwargs.items()) if kwargs else ""))
         if report:
@@ -162,6 +168,12 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         raise UsageError(f"--output: folder {out.parent} does not exist")
     if out.is_dir():
         raise UsageError(f"--output: {out} is a folder, expected a file name")
+    from pointillist.imaging.io import check_output_path
+
+    try:
+        check_output_path(out, [source], name="--output")
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     plot_path = None
     if plot or plot_file:
         plot_path = Path(plot_file) if plot_file else out.with_name(out.stem + "_histogram.png")
@@ -169,8 +181,6 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
             raise UsageError(f"--plot-file: expected a .png file name, got {plot_path}")
         if plot_path.resolve() == out.resolve():
             raise UsageError(f"--plot-file: {plot_path} is the --output file")
-        from pointillist.imaging.io import check_output_path
-
         try:
             check_output_path(plot_path, [source], name="--plot")
         except ValueError as error:
@@ -182,12 +192,14 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         image, metadata, _layers = read_image(source)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    dropped = []
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]
+        dropped.append("post: warning: the input's alpha channel is dropped (the steps run on RGB)")
     before = image
     applied = apply_steps(image, pipeline, linear=source.suffix.lower() == ".exr", report=report)
-    current, linear, done, notes, reports = (applied.image, applied.linear, applied.done, applied.notes,
-                                             applied.reports)
+    current, linear, done, notes, reports = (applied.image, applied.linear, applied.done,
+                                             dropped + applied.notes, applied.reports)
     if out.suffix.lower() == ".exr":
         write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=[source])
     elif linear:

@@ -71,9 +71,15 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     from pointillist.scene import load_scene, scene_info, timed_render
 
     params = dict(params or {})
+    from pointillist.imaging.io import check_output_path
+
     out = output_path(str(scene), None if output is None else str(output))
     if not out.parent.is_dir():
         raise UsageError(f"--output: folder {out.parent} does not exist")
+    try:  # before the render: an output that cannot be written fails first
+        check_output_path(out, [scene], name="--output")
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     pointillist.setup()
     start = time.perf_counter()
     loaded = load_scene(scene, params)

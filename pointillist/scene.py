@@ -10,21 +10,39 @@ from typing import Any
 
 from pointillist.errors import UsageError
 
-__all__ = ["parse_defines", "load_scene", "mitsuba_message", "RenderTiming", "timed_render", "scene_info",
-           "check_sample_count", "MAX_SAMPLES"]
+__all__ = ["parse_defines", "load_scene", "check_scene_file", "check_sensor", "mitsuba_message", "MAX_MESSAGE",
+           "RenderTiming", "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count",
+           "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
 _TRACEBACK = re.compile(r"Traceback \(most recent call last\):\n(?:[ \t].*\n)*(?P<exception>\S.*)")
 
 
+_INCLUDE = re.compile(r"Error while loading (?P<file>.+?) \(line \d+, col \d+\): while processing <include>: ")
+
+#: The longest message :func:`mitsuba_message` returns (characters; longer ones are cut with "...").
+MAX_MESSAGE = 400
+
+
 def mitsuba_message(error: BaseException) -> str:
-    """One line from a Mitsuba exception: source-location prefixes dropped, lines joined."""
+    """One line from a Mitsuba exception: source-location prefixes dropped, lines joined.
+
+    A chain of nested ``<include>`` errors (an include cycle repeats it 15 times) keeps
+    its first and last link and names the files in between; the line is cut at
+    :data:`MAX_MESSAGE` characters.
+    """
     text = _PREFIX.sub("", str(error))
     # A Python plugin's exception reaches us as Mitsuba's message with the Python traceback
     # pasted in: keep the text before it and the exception's own last line.
     text = _TRACEBACK.sub(lambda m: m.group("exception"), text)
-    return " ".join(part.strip(" -") for part in text.splitlines() if part.strip())
+    text = " ".join(part.strip(" -") for part in text.splitlines() if part.strip())
+    links = list(_INCLUDE.finditer(text))
+    if len(links) > 2:
+        files = list(dict.fromkeys(Path(m.group("file")).name for m in links[1:]))
+        text = (text[:links[0].end()] + f"[{len(links) - 1} nested <include>s of {', '.join(files[:4])}"
+                + (", ..." if len(files) > 4 else "") + "] " + text[links[-1].end():])
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
 
 
 def parse_defines(defines: list[str] | None) -> dict[str, str]:
@@ -46,15 +64,31 @@ def load_scene(path: str | Path, params: dict[str, str] | None = None):
     """
     import mitsuba as mi
 
-    path = Path(path)
-    if not path.is_file():
-        raise UsageError(f"scene: no such file: {path}")
+    path = check_scene_file(path)
     try:
         # parallel=False: Mitsuba's parallel loader instantiates plugins in a random order, which
         # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
-        return mi.load_file(str(path), parallel=False, **(params or {}))
+        scene = mi.load_file(str(path), parallel=False, **(params or {}))
     except RuntimeError as error:
         raise UsageError(f"scene {path}: {mitsuba_message(error)}") from None
+    check_sensor(scene, path)
+    return scene
+
+
+def check_scene_file(path: str | Path) -> Path:
+    """``path`` as a Path; UsageError unless it is an existing file (a folder is named as such)."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"scene: {path} is a folder, expected a scene XML file")
+    if not path.is_file():
+        raise UsageError(f"scene: no such file: {path}")
+    return path
+
+
+def check_sensor(scene, path: str | Path) -> None:
+    """UsageError unless the loaded ``scene`` has a sensor (Mitsuba loads a scene without one)."""
+    if not scene.sensors():
+        raise UsageError(f"scene {path}: has no <sensor> (a camera to render from)")
 
 
 @dataclass
@@ -167,6 +201,20 @@ def scene_info(scene, sensor: int = 0) -> dict[str, Any]:
         "width": int(film.crop_size()[0]),
         "height": int(film.crop_size()[1]),
     }
+
+
+def film_filter(scene, sensor: int = 0) -> str:
+    """The film's reconstruction filter as Mitsuba prints it (``BoxFilter[]``,
+    ``GaussianFilter[stddev=0.50, radius=2.00]`` ...)."""
+    return str(scene.sensors()[sensor].film().rfilter()).splitlines()[0].strip()
+
+
+def filter_note(description: str) -> str:
+    """One line saying whether a film filter makes a pixel the plain average of its samples."""
+    if description.startswith("BoxFilter"):
+        return f"film filter: {description} (box: each pixel is the plain average of its samples)"
+    return (f"film filter: {description}: a pixel is a weighted sum of nearby samples, not the plain "
+            "average of its own (the course's super-sampling needs <rfilter type=\"box\"/> in the film)")
 
 
 def _plugin_id(obj) -> str:

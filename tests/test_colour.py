@@ -7,8 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
+from pointillist.imaging.arrays import NonFiniteWarning
 from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, adjust_hsv, hsv_to_rgb, luminance, rgb_to_hsv,
-                            srgb_decode, srgb_encode)
+                                        srgb_decode, srgb_encode)
 
 
 def _rgb_samples() -> np.ndarray:
@@ -101,7 +102,32 @@ def test_luminance_uses_rec709_weights():
     grey = np.arange(6, dtype=np.float32).reshape(2, 3)
     np.testing.assert_array_equal(np.asarray(luminance(grey)), grey)
     np.testing.assert_array_equal(np.asarray(luminance(grey[..., None])), grey)
-    assert np.asarray(luminance(np.array([[[np.nan, 1, 1]]]))).item() == 0.0
+    with pytest.warns(NonFiniteWarning, match="luminance: replaced 1 non-finite"):
+        y = np.asarray(luminance(np.array([[[np.nan, 1, 1]]]))).item()
+    assert y == pytest.approx(0.7152 + 0.0722)   # the NaN component counts as 0
+
+
+def test_non_finite_rule():
+    """NaN -> 0, +inf -> white (max_value), -inf -> 0, one NonFiniteWarning with the count (issue 17:
+    rgb_to_hsv gave V = 1e30, hsv_to_rgb -1e30, luminance passed +-inf, none warned)."""
+    rgb = np.array([[[np.inf, 0.5, 0.0], [np.nan, -np.inf, 1.0]]], np.float32)
+    clean = np.array([[[1.0, 0.5, 0.0], [0.0, 0.0, 1.0]]], np.float32)
+    cases = [(rgb_to_hsv, rgb, clean, 3), (luminance, rgb, clean, 3), (srgb_encode, rgb, clean, 3),
+             (srgb_decode, rgb, clean, 3), (lambda x: adjust_hsv(x, hue=30), rgb, clean, 3),
+             (hsv_to_rgb, np.array([[[np.inf, np.inf, np.inf], [np.nan, -np.inf, 0.5]]], np.float32),
+              np.array([[[0.0, 1.0, 1.0], [0.0, 0.0, 0.5]]], np.float32), 5)]
+    for function, dirty, same, count in cases:
+        with pytest.warns(NonFiniteWarning) as caught:
+            got = np.asarray(function(dirty))
+        messages = [str(w.message) for w in caught if issubclass(w.category, NonFiniteWarning)]
+        assert len(messages) == 1 and f"replaced {count} non-finite" in messages[0], messages
+        np.testing.assert_array_equal(got, np.asarray(function(same)))
+    with pytest.warns(NonFiniteWarning):
+        assert np.asarray(rgb_to_hsv(rgb, max_value=255.0))[0, 0].tolist() == pytest.approx([60 * 0.5 / 255, 1, 255])
+    with pytest.warns(NonFiniteWarning):
+        assert np.asarray(luminance(np.array([[np.inf, -np.inf]]), max_value=255.0)).tolist() == [[255.0, 0.0]]
+    with pytest.raises(ValueError, match="max_value"):
+        luminance(rgb, max_value=0)
 
 
 def test_srgb_curves_match_colour_science():
@@ -113,8 +139,9 @@ def test_srgb_curves_match_colour_science():
     np.testing.assert_allclose(np.asarray(srgb_decode(image)), ref, rtol=5e-6, atol=2e-7)
     unit = np.linspace(0, 1, 257, dtype=np.float32).reshape(1, -1)
     np.testing.assert_allclose(np.asarray(srgb_decode(srgb_encode(unit))), unit, atol=1e-6)
-    ends = np.asarray(srgb_encode(np.array([[0.0, 1.0, np.nan, np.inf]])))
-    assert ends.tolist() == [[0.0, 1.0, 0.0, np.inf]]
+    with pytest.warns(NonFiniteWarning, match="replaced 2 non-finite"):   # the imaging rule: +inf -> white
+        ends = np.asarray(srgb_encode(np.array([[0.0, 1.0, np.nan, np.inf]])))
+    assert ends.tolist() == [[0.0, 1.0, 0.0, 1.0]]
 
 
 @pytest.mark.parametrize("function", [rgb_to_hsv, hsv_to_rgb, adjust_hsv])

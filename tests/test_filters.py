@@ -290,13 +290,42 @@ def test_post_steps_registered_and_run(rng, tmp_path, cli):
     assert out(current).shape == (2, 3)
     source = tmp_path / "in.png"
     from pointillist.imaging.io import write_png
-    write_png(source, np.tile(np.linspace(0, 255, 16, dtype=np.float32), (12, 1)), srgb=False, max_value=255.0)
+    step = np.tile(np.where(np.arange(16) < 8, 40.0, 200.0).astype(np.float32), (12, 1))   # one vertical edge
+    write_png(source, step, srgb=False, max_value=255.0)
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr
     ramp = np.asarray(Image.open(source).convert("L")).astype(np.float32)
-    expected = out(F.threshold(F.normalize(F.sobel(ramp)), 128))
+    # normalize after a zero-border step leaves that step's uncomputed ring out (issue 17)
+    expected = out(F.threshold(F.normalize(F.sobel(ramp), ring=1), 128))
     written = np.asarray(Image.open(tmp_path / "edges.png").convert("L")).astype(np.float32)
     np.testing.assert_array_equal(written, expected)
-    assert 0 < (written == 255).mean() < 1  # edges at the borders only (zero padding), not all
+    assert (written[1:-1, 7:9] == 255).all() and (written[:, :6] == 0).all() and (written[:, 10:] == 0).all()
+    assert (written[[0, -1]] == 0).all()  # the ring stays 0: not an edge of the image
     bad = cli("post", source, "-o", tmp_path / "bad.png", "--steps", "correlate:sobel_z")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_normalize_leaves_the_uncomputed_ring_out():
+    """Issue 17: ``normalize`` alone counted the zero border ring, so ``normalize(correlate(...))``
+    differed from ``correlate(..., normalize=True)`` (193..255 against 0..255 on a positive image);
+    with ``ring`` the two agree, and ``post`` passes the ring of the window step before."""
+    from pointillist.post import apply_steps
+
+    img = (np.random.default_rng(17).random((5, 5)) * 200 + 50).astype(np.float32)  # positive: ring 0 = the min
+    for kernel, border in (("gaussian", "zero"), ("sobel_x", "zero"), ("laplacian", "keep")):
+        fused = out(F.correlate(img, kernel, border=border, normalize=True))
+        apart = out(F.normalize(F.correlate(img, kernel, border=border), ring=1))
+        np.testing.assert_array_equal(apart, fused)
+        assert fused[1:4, 1:4].min() == 0 and fused[1:4, 1:4].max() == 255
+    gauss = out(F.correlate(img, F.GAUSSIAN_3))
+    inner = np.abs(gauss[1:4, 1:4])
+    expected = (inner - inner.min()) * 255 / (inner.max() - inner.min())
+    np.testing.assert_allclose(out(F.normalize(gauss, ring=1))[1:4, 1:4], expected, rtol=1e-6)
+    assert out(F.normalize(gauss))[1:4, 1:4].min() > 150      # the whole image: the ring's 0 is the min
+    steps = apply_steps(img, "correlate:gaussian;normalize")
+    np.testing.assert_array_equal(out(steps.image), out(F.correlate(img, "gaussian", normalize=True)))
+    assert steps.done == ["correlate:kernel=gaussian", "normalize:ring=1"]
+    assert out(apply_steps(img, "correlate:gaussian,border=reflect;normalize").image).min() == 0
+    for bad in (-1, (1,), 1.5, True):
+        with pytest.raises(ValueError, match="ring"):
+            F.normalize(img, ring=bad)

@@ -175,13 +175,31 @@ def test_stretch_rejects_bad_breakpoints(args, name):
 # ------------------------------------------------------------------------------------------ quantize
 
 @pytest.mark.parametrize("levels", [2, 3, 4, 7, 16, 255, 256])
-def test_quantize_definition(levels):
+@pytest.mark.parametrize("mode", ["nearest", "bins"])
+def test_quantize_definition(levels, mode):
     x = np.arange(256, dtype=np.float64)
-    expected = np.minimum(np.floor(x * levels / 255), levels - 1) * 255 / (levels - 1)
-    np.testing.assert_allclose(a(quantize(x.reshape(16, 16), levels)).ravel(), expected, rtol=1e-6)
-    np.testing.assert_array_equal(a(quantize(x.astype(np.uint8).reshape(16, 16), levels)),
-                                  a(quantize(x.reshape(16, 16), levels)))
-    assert len(np.unique(a(quantize(x.reshape(16, 16), levels)))) == levels
+    levels_out = np.arange(levels) * 255 / (levels - 1)
+    if mode == "bins":
+        expected = np.minimum(np.floor(x * levels / 255), levels - 1) * 255 / (levels - 1)
+    else:  # the course's: the nearest of the levels (no exact ties among 0..255 here but at 2 levels' 127.5)
+        expected = levels_out[np.abs(x[:, None] - levels_out[None, :]).argmin(axis=1)]
+    got = a(quantize(x.reshape(16, 16), levels, mode=mode)).ravel()
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+    np.testing.assert_array_equal(a(quantize(x.astype(np.uint8).reshape(16, 16), levels, mode=mode)),
+                                  a(quantize(x.reshape(16, 16), levels, mode=mode)))
+    assert len(np.unique(got)) == levels
+
+
+def test_quantize_modes_differ_as_the_issue_says():
+    """Issue 17: at 4 levels, 42 of the 256 inputs get another level from the bins than the nearest
+    one, by up to 63 (against at most 42.5 for the nearest level); the default is the nearest."""
+    x = np.arange(256, dtype=np.float32).reshape(16, 16)
+    nearest, bins = a(quantize(x, 4)), a(quantize(x, 4, mode="bins"))
+    assert np.array_equal(nearest, a(quantize(x, 4, mode="nearest")))
+    assert np.count_nonzero(nearest != bins) == 42
+    assert np.abs(bins - x).max() == 63 and np.abs(nearest - x).max() == 42
+    with pytest.raises(ValueError, match="mode"):
+        quantize(x, 4, mode="round")
 
 
 def test_quantize_edges():

@@ -22,7 +22,11 @@ class LambertBSDF(mi.BSDF):
        - exposed, differentiable
 
     The BSDF is :math:`f(\omega_i, \omega_o) = K_d / \pi` for directions on the
-    front side of the surface; ``eval`` returns :math:`f \cos\theta_o`.
+    front side of the surface; ``eval`` returns :math:`f \cos\theta_o`. Against the
+    course's diffuse term :math:`K_d I_L (n \cdot l)`: a point light of intensity
+    :math:`I_L` at distance :math:`d` contributes :math:`\frac{I_L}{d^2} \frac{K_d}{\pi}
+    (n \cdot l)`, the course's value divided by the constant :math:`\pi` (and the
+    distance falloff, which the course's point light leaves out).
     ``sample`` draws :math:`\omega_o` from the cosine-weighted hemisphere
     (pdf :math:`\cos\theta_o / \pi`), so the sample weight is exactly
     :math:`K_d`. It is the same model as Mitsuba's built-in ``diffuse`` and

@@ -49,9 +49,22 @@ class PhongBSDF(mi.BSDF):
     :math:`K_d + K_s`. Physically plausible: where :math:`K_d + K_s > 1` in a
     channel both are divided by their sum in that channel (a warning is logged
     when this is detected on construction; for textures it is applied per
-    texel while rendering). With point lights and Whitted ray tracing this is
-    the course's local model :math:`I = K_a I_a + K_d I_L (n \cdot l) + K_s I_L
-    (r \cdot e)^n` up to the normalisation factors.
+    texel while rendering).
+
+    Relation to the course's local model :math:`I = K_a I_a + K_d I_L (n \cdot l) + K_s I_L
+    (r \cdot e)^n`: a BSDF is multiplied by the cosine :math:`n \cdot l` in the rendering
+    equation, so one point light of intensity :math:`I_L` at distance :math:`d` contributes
+
+    .. math::
+
+        \frac{I_L}{d^2} \Bigl[\frac{K_d}{\pi} (n \cdot l)
+            + K_s \frac{n + 2}{2\pi} (r \cdot e)^n (n \cdot l)\Bigr].
+
+    The diffuse term is the course's divided by the constant :math:`\pi`; the specular term is
+    the course's times :math:`\frac{n+2}{2\pi} (n \cdot l)`, a factor that depends on the angle
+    of incidence (the course's specular term has no :math:`n \cdot l`), so no constant rescaling
+    of :math:`K_s` turns one into the other. The ambient term is the ``whitted`` integrator's
+    (``ambient`` :math:`I_a`, times :math:`K_d`: the course's :math:`K_a = K_d`).
 
     Sampling: the lobe is chosen with probability proportional to its weight
     (:math:`p_s = \bar K_s / (\bar K_d + \bar K_s)`, channel means); the

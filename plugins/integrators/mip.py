@@ -14,10 +14,15 @@ from pointillist.plugins.integrators._common import develop_film
 from pointillist.plugins.properties import (boolean_property, integer_property, number_property, scalar_transform,
                                             string_property, transform_property)
 
-__all__ = ["MIPIntegrator", "MODES"]
+__all__ = ["MIPIntegrator", "MODES", "MAX_RAY_SAMPLES"]
 
 #: Projection modes (the ones napari and VTK offer).
 MODES = ("mip", "minip", "average")
+
+#: The most samples one ray may take (the box's diagonal over the step): a smaller step, or a
+#: spacing so anisotropic that the step (in voxels of the smallest spacing) is that fine, is refused.
+MAX_RAY_SAMPLES = 2**20
+
 
 def _parse_spacing(text: str) -> list[float]:
     """The ``spacing`` property ``"sx,sy,sz"`` (commas or spaces) as three positive finite floats."""
@@ -81,7 +86,8 @@ class MIPIntegrator(mi.SamplingIntegrator):
        - ``trilinear`` or ``nearest`` texture lookups. (Default: ``trilinear``)
      * - step
        - |float|
-       - Marching step in voxels of the smallest spacing. (Default: 0.5)
+       - Marching step in voxels of the smallest spacing; a step giving a ray more than
+         ``MAX_RAY_SAMPLES`` (2^20) samples is refused. (Default: 0.5)
      * - window
        - |string|
        - Display window ``"level,width"`` or a preset (``brain``, ``soft``, ``lung``, ``bone``,
@@ -219,10 +225,27 @@ class MIPIntegrator(mi.SamplingIntegrator):
         dr.make_opaque(transform)
         return transform
 
+    def ray_samples(self) -> float:
+        """The most samples a ray takes: the box's diagonal over the step (``step`` voxels of the
+        smallest spacing)."""
+        extent = np.asarray(self.volume.extent, dtype=np.float64)
+        return float(np.linalg.norm(extent / min(self.volume.spacing))) / self.step
+
     def project_rays(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
-        """Raw projected value along each ray and whether it met a (non-NaN) sample."""
+        """Raw projected value along each ray and whether it met a (non-NaN) sample.
+
+        Raises ValueError when a ray would take more than :data:`MAX_RAY_SAMPLES` samples.
+        """
         if self.volume is None:
             raise RuntimeError("mip: no volume; give a 'filename' or call set_volume()")
+        samples = self.ray_samples()
+        if not samples <= MAX_RAY_SAMPLES:
+            smallest = min(self.volume.spacing)
+            raise ValueError(
+                f"step: {self.step:g} voxel(s) of the smallest spacing {smallest:g} is up to {samples:.3g} samples "
+                f"per ray, more than {MAX_RAY_SAMPLES} (2^20); use a step of at least "
+                f"{self.step * samples / MAX_RAY_SAMPLES:.3g}" + (
+                    "" if max(self.volume.spacing) <= 1e3 * smallest else " or a less anisotropic spacing"))
         if self.fast_axis and active is True:
             result = self._columns(ray)
             if result is not None:

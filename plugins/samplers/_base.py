@@ -15,6 +15,12 @@ samplers do, so that any (pixel, sample) is reproducible on its own:
   (MurmurHash3's finaliser): uniform numbers decorrelated from the pattern, from
   other dimensions, pixels and seeds.
 
+A sampler only places the samples; the film's reconstruction filter turns them into pixels.
+The course's super-sampling (a pixel = the plain average of its own samples) is what these
+samplers give with ``<rfilter type="box"/>`` in the film; Mitsuba's default Gaussian filter
+(radius 2 pixels) weights samples by distance and spreads them into neighbouring pixels, so a
+pixel next to an edge gets another value.
+
 The dimension counter is a Dr.Jit ``UInt32`` (never a Python int) so that it is
 loop state inside the integrators' symbolic loops (NOTES-mitsuba.md); the seed
 is opaque so a new seed does not recompile the kernels.

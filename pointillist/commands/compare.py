@@ -85,5 +85,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
     print(f"wrote {paths['csv']}, {paths['md']}, {paths['time_plot']}, {paths['spp_plot']}")
     if "html" in paths:
-        print(f"report: {paths['html']} ({'; '.join(result.notes)})")
+        print(f"report: {paths['html']} ({result.notes[-1]})")  # the page's summary; the other notes were logged
     return 0

@@ -35,25 +35,31 @@ __all__ = ["Step", "STEPS", "step", "steps", "parse_steps", "parse_value"]
 
 @dataclass(frozen=True)
 class Step:
+    """A registered step. ``ring(kwargs)`` (window steps) gives the width of the border ring the
+    step leaves uncomputed (0 with a padded border; ``None`` for steps that map each value and keep
+    the ring as it was); ``normalize`` leaves that ring out of its min and max."""
+
     name: str
     function: Callable[..., Any]
     help: str
     params: tuple[str, ...] = ()
     linear: bool = False
     report: Callable[[Any, Any], dict[str, float]] | None = field(default=None)
+    ring: Callable[[dict[str, Any]], int] | None = field(default=None)
 
 
 STEPS: dict[str, Step] = {}
 
 
 def step(name: str, *, help: str, params: tuple[str, ...] = (), linear: bool = False,
-         report: Callable[[Any, Any], dict[str, float]] | None = None):
-    """Decorator registering ``function`` as the post step ``name``."""
+         report: Callable[[Any, Any], dict[str, float]] | None = None,
+         ring: Callable[[dict[str, Any]], int] | None = None):
+    """Decorator registering ``function`` as the post step ``name`` (``ring``: see :class:`Step`)."""
 
     def decorate(function):
         if name in STEPS and STEPS[name].function is not function:
             raise RuntimeError(f"post step {name!r} is defined twice")
-        STEPS[name] = Step(name, function, help, tuple(params), linear, report)
+        STEPS[name] = Step(name, function, help, tuple(params), linear, report, ring)
         return function
 
     return decorate

@@ -38,20 +38,22 @@ def _equalize(image, levels=256):
     return tone.equalize_histogram(image, levels)
 
 
-@step("quantize", params=("levels",), help="quantise to N evenly spaced grey levels")
-def _quantize(image, levels):
-    return tone.quantize(image, levels)
+@step("quantize", params=("levels", "mode"),
+      help="quantise to N evenly spaced grey levels: mode nearest (the nearest level, default) or bins "
+           "(N equal-width bins)")
+def _quantize(image, levels, mode="nearest"):
+    return tone.quantize(image, levels, mode=mode)
 
 
 @step("hsv", params=("hue", "saturation", "value"),
       help="RGB only: shift hue by degrees, scale saturation and value (defaults 0,1,1)")
 def _hsv(image, hue=0.0, saturation=1.0, value=1.0):
-    return colour.adjust_hsv(image, hue=hue, saturation=saturation, value=value)
+    return colour.adjust_hsv(image, hue=hue, saturation=saturation, value=value, max_value=255.0)
 
 
 @step("grey", help="Rec. 709 weighted grey (luma of display values); grey input unchanged")
 def _grey(image):
-    return colour.luminance(image)
+    return colour.luminance(image, max_value=255.0)
 
 
 @step("lut", params=("file",), help="apply a 256-entry table read from a text or .npy file (one value per level)")
