@@ -377,7 +377,9 @@ def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
 
 
 def srgb_encode_values(values: Float) -> Float:
-    """sRGB encoding of linear values (any Dr.Jit float array or Python float) (colour-science's ``eotf_inverse_sRGB``), NaN -> 0."""
+    """sRGB encoding of linear values (any Dr.Jit float array or Python float), NaN -> 0.
+
+    colour-science calls it ``eotf_inverse_sRGB``."""
     values = dr.select(dr.isnan(values), 0.0, values)
     # 1.055 p - 0.055 written as 1.055 (p - 1) + 1 (1.055 - 0.055 = 1): white encodes to exactly 1
     power = SRGB_SCALE * (dr.power(dr.maximum(values, SRGB_LINEAR_THRESHOLD), 1.0 / SRGB_EXPONENT) - 1.0) + 1.0
@@ -385,7 +387,9 @@ def srgb_encode_values(values: Float) -> Float:
 
 
 def srgb_decode_values(values: Float) -> Float:
-    """sRGB decoding of encoded values (any Dr.Jit float array or Python float) (colour-science's ``eotf_sRGB``), NaN -> 0."""
+    """sRGB decoding of encoded values (any Dr.Jit float array or Python float), NaN -> 0.
+
+    colour-science calls it ``eotf_sRGB``."""
     values = dr.select(dr.isnan(values), 0.0, values)
     base = (dr.maximum(values, SRGB_ENCODED_THRESHOLD) + SRGB_OFFSET) * (1.0 / SRGB_SCALE)
     return dr.select(values <= SRGB_ENCODED_THRESHOLD, values * (1.0 / SRGB_SLOPE), dr.power(base, SRGB_EXPONENT))

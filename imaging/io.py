@@ -397,7 +397,8 @@ def read_image(path: str | os.PathLike) -> EXRImage:
             if mode in ("I;16", "I;16B", "I"):
                 pixels = np.asarray(img, dtype=np.float32) / 257.0
             else:
-                img = img.convert("RGBA" if "A" in mode else ("L" if mode in ("L", "1", "P") and mode != "P" else "RGB"))
+                grey = mode in ("L", "1", "P") and mode != "P"
+                img = img.convert("RGBA" if "A" in mode else ("L" if grey else "RGB"))
                 pixels = np.asarray(img, dtype=np.float32)
     except (UnidentifiedImageError, OSError) as error:
         raise ValueError(f"path: {path} is not a readable image ({error})") from None

@@ -128,7 +128,8 @@ def check_sample_count(width: int, height: int, spp: int) -> None:
     >>> check_sample_count(256, 256, 65536)
     Traceback (most recent call last):
     ...
-    pointillist.errors.UsageError: spp: 256x256 pixels at 65536 spp is 4294967296 samples, more than one render takes (2^32 - 1); use fewer spp, or --tiles to split the film
+    pointillist.errors.UsageError: spp: 256x256 pixels at 65536 spp is 4294967296 samples, more than one render
+    takes (2^32 - 1); use fewer spp, or --tiles to split the film
     """
     if width < 1 or height < 1:
         raise UsageError(f"scene: the film has no pixels ({width}x{height}); expected width and height >= 1")

@@ -156,7 +156,8 @@ MUTANTS = [
     Mutant("flip_swapped", "FLIP: reference and test arguments swapped",
            [(FLIP_REFERENCE, "reference = clean(x)"),
             (FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(reference, clean(r)"))], FLIP, True),
-    Mutant("flip_swapped_call", "FLIP: reference and test swapped in the call only (exposures still from the reference)",
+    Mutant("flip_swapped_call",
+           "FLIP: reference and test swapped in the call only (exposures still from the reference)",
            [(FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(clean(x), reference"))], FLIP),
     Mutant("flip_ldr", "FLIP: LDR instead of HDR", [(FLIP_CALL, FLIP_CALL.replace('"HDR"', '"LDR"'))], FLIP, True),
 ]

@@ -196,7 +196,8 @@ def test_equal_time_ranking_hand_case():
 def test_equal_error_ranking_hand_case():
     rows = [
         {"method": "a", "value": 4, "time": 1.0, "rmse": 0.5}, {"method": "a", "value": 16, "time": 4.0, "rmse": 0.1},
-        {"method": "b", "value": 128, "time": 2.0, "rmse": 0.2}, {"method": "b", "value": 64, "time": 3.0, "rmse": 0.05},
+        {"method": "b", "value": 128, "time": 2.0, "rmse": 0.2},
+        {"method": "b", "value": 64, "time": 3.0, "rmse": 0.05},
         {"method": "c", "value": 1, "time": 0.1, "rmse": math.nan},
     ]
     # default budgets: the first method's points (0.5 then 0.1); b's fastest point within each
@@ -353,6 +354,7 @@ def test_docstring_examples_run():
     import pointillist.compare_report as compare_report
     import pointillist.imaging.metrics as metrics
 
-    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE) for module in (compare_report, metrics)]
+    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+               for module in (compare_report, metrics)]
     assert all(r.attempted >= 2 for r in results) and sum(r.attempted for r in results) >= 6
     assert all(r.failed == 0 for r in results)

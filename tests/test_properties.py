@@ -39,7 +39,8 @@ def arrays(shapes=None, dtypes=DTYPES, finite=False, low=None, high=None):
             if finite or low is not None:
                 return st.floats(low if low is not None else -1e30, high if high is not None else 1e30,
                                  allow_nan=False, allow_infinity=False, width=width)
-            return st.one_of(st.floats(width=width), st.sampled_from([np.nan, np.inf, -np.inf, 1e30, -1e30, 0.0, 255.0]))
+            special = st.sampled_from([np.nan, np.inf, -np.inf, 1e30, -1e30, 0.0, 255.0])
+            return st.one_of(st.floats(width=width), special)
         return None  # hypothesis' own full range of the integer / bool dtype
 
     return st.sampled_from(dtypes).flatmap(

@@ -43,7 +43,8 @@ def test_sobel_equals_opencv_on_camera(camera):
     image = camera.astype(np.float32)
     gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
     gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
-    np.testing.assert_allclose(np.asarray(filters.sobel(camera, border="clamp")), np.hypot(gx, gy), rtol=1e-5, atol=1e-2)
+    np.testing.assert_allclose(np.asarray(filters.sobel(camera, border="clamp")), np.hypot(gx, gy),
+                               rtol=1e-5, atol=1e-2)
 
 
 def test_gaussian_correlate_equals_opencv_on_astronaut(astronaut):
@@ -131,7 +132,8 @@ def test_pydicom_ct_small(tmp_path):
     np.testing.assert_allclose(vol.origin, [float(v) for v in ds.ImagePositionPatient])
     # The same slice three times, moved along the slice normal and written out of order: the
     # reader stacks them by position (not by file name or instance number).
-    normal = np.cross(np.asarray(ds.ImageOrientationPatient[:3], float), np.asarray(ds.ImageOrientationPatient[3:], float))
+    orientation = np.asarray(ds.ImageOrientationPatient, float)
+    normal = np.cross(orientation[:3], orientation[3:])
     series = tmp_path / "series"
     series.mkdir()
     for name, step, offset in (("a.dcm", 2, 0), ("b.dcm", 0, 100), ("c.dcm", 1, -100)):
