@@ -212,13 +212,9 @@ def main() -> int:
     table = "\n".join(lines)
     print(table)
     if args.write:
-        path = ROOT / "benchmarks" / "RESULTS.md"
-        text = path.read_text()
-        begin, end = "<!-- BEGIN distributed -->", "<!-- END distributed -->"
-        head, rest = text.split(begin)
-        _, tail = rest.split(end)
-        path.write_text(f"{head}{begin}\n## Distributed sweeps (Dask)\n\n{table}\n{end}{tail}")
-        print(f"wrote {path}")
+        from _results import write_block
+
+        print(f"wrote {write_block('distributed', '## Distributed sweeps (Dask)' + chr(10) * 2 + table)}")
     return 0
 
 

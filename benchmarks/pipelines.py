@@ -158,16 +158,6 @@ def markdown(args, cases, first, times, kernels) -> str:
     return "\n".join(lines)
 
 
-def _write_block(text: str) -> None:
-    path = ROOT / "benchmarks" / "RESULTS.md"
-    content = path.read_text()
-    begin, end = "<!-- BEGIN pipelines -->", "<!-- END pipelines -->"
-    if begin not in content:
-        content = content.rstrip("\n") + f"\n\n{begin}\n{end}\n"
-    i, j = content.index(begin) + len(begin), content.index(end)
-    path.write_text(content[:i] + "\n" + text + "\n" + content[j:])
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=2048)
@@ -177,7 +167,9 @@ def main(argv=None) -> int:
     text = markdown(args, *measure(args.size, args.rounds))
     print(text)
     if args.write:
-        _write_block(text)
+        from _results import write_block
+
+        write_block("pipelines", text)
     return 0
 
 

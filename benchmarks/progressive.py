@@ -232,18 +232,15 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     if args.write:
-        path = ROOT / "benchmarks" / "RESULTS.md"
-        content = path.read_text()
-        begin, end = "<!-- BEGIN progressive -->", "<!-- END progressive -->"
-        if begin not in content:
-            content = content.rstrip("\n") + f"\n\n{begin}\n{end}\n"
-        i, j = content.index(begin) + len(begin), content.index(end)
+        from _results import read_block, write_block
+
         if skip:  # keep the sections of the parts not run this time from the block already there
-            old = {part.split("\n", 1)[0].split(" ")[0]: "### " + part for part in content[i:j].split("\n### ")[1:]}
+            parts = read_block("progressive").split("\n### ")[1:]
+            old = {part.split("\n", 1)[0].split(" ")[0]: "### " + part for part in parts}
             keep = [old[key].rstrip("\n") + "\n" for part, key in (("overhead", "Overhead"), ("time", "Time"),
                                                                    ("error", "Error")) if part in skip and key in old]
             text = text.rstrip("\n") + "\n\n" + "\n".join(keep)
-        path.write_text(content[:i] + "\n" + text + "\n" + content[j:])
+        write_block("progressive", text)
     return 0
 
 

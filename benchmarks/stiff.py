@@ -323,16 +323,6 @@ def report(args, pixels, camera, instances, timing, offsets, seconds):
     return "\n".join(out)
 
 
-def _write_block(text):
-    path = ROOT / "benchmarks" / "RESULTS.md"
-    content = path.read_text()
-    begin, end = "<!-- BEGIN stiff -->", "<!-- END stiff -->"
-    if begin not in content:
-        content = content.rstrip("\n") + f"\n\n{begin}\n{end}\n"
-    i, j = content.index(begin) + len(begin), content.index(end)
-    path.write_text(content[:i] + "\n" + text + "\n" + content[j:])
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--res", type=int, default=256, help="resolution of the timed scenes (default 256)")
@@ -369,7 +359,9 @@ def main(argv=None) -> int:
     text = report(args, pixels, camera, instances, timing, offsets, time.perf_counter() - start)
     print(text)
     if args.write:
-        _write_block(text)
+        from _results import write_block
+
+        write_block("stiff", text)
     return 0
 
 

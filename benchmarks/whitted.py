@@ -234,7 +234,9 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     if args.write:
-        _write_block(text)
+        from _results import write_block
+
+        write_block("whitted", text)
     return 0
 
 
@@ -283,13 +285,6 @@ def _markdown(args, rows, compile_rows, kernel, kres, kspp):
             "`pointillist.scene.timed_render` reports."]
     return out
 
-
-def _write_block(text):
-    path = ROOT / "benchmarks" / "RESULTS.md"
-    content = path.read_text()
-    begin, end = "<!-- BEGIN whitted -->", "<!-- END whitted -->"
-    i, j = content.index(begin) + len(begin), content.index(end)
-    path.write_text(content[:i] + "\n" + text + "\n" + content[j:])
 
 
 if __name__ == "__main__":
