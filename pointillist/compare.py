@@ -30,7 +30,6 @@ import numpy as np
 from pointillist.compare_methods import METHODS, load_configured_scene, resolve_methods, scene_key, sweep_parameter
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
-from pointillist.imaging.metrics import image_errors
 
 __all__ = [
     "Task", "RenderRecord", "render_one", "task_paths", "render_reference",
@@ -259,6 +258,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
 
     from pointillist.compare_report import format_time
     from pointillist.imaging.io import read_exr
+    from pointillist.imaging.metrics import image_errors
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
