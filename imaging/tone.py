@@ -6,9 +6,15 @@ Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
 The display-domain operations work on intensities 0..``max_value`` (255 by
 default); :func:`tonemap` turns linear HDR renders into such intensities.
 
-8-bit input (a numpy ``uint8`` array) is served by a 256-entry look-up table
-computed with the same formula, read four pixels per 32-bit word without
-converting the image to float first.
+8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8``
+array or a ``drjit.llvm.TensorXu8``), :func:`gamma`, :func:`contrast_stretch`,
+:func:`quantize`, :func:`lut` and :func:`equalize_histogram` return a
+``drjit.llvm.TensorXu8`` (``np.asarray`` gives uint8) holding the float32 result
+rounded as the 8-bit writers round it (clipped to 0..255, half to even:
+:func:`pointillist.imaging.arrays.to_uint8`); float input keeps float32 output. Pass
+``image.astype(np.float32)`` for unrounded float output. 8-bit input is served by a
+256-entry table computed with the same formula, read without converting the image
+to float first.
 
 Notes
 -----
@@ -16,17 +22,20 @@ Non-finite input (the policy of every function here): NaN becomes 0, +inf
 becomes white (``max_value``; 255 after :func:`tonemap`), -inf becomes 0, and a
 :class:`NonFiniteWarning` reports how many values were replaced.
 
-======================  ==============================  ==========================
-Function                Domain                          Range
-======================  ==============================  ==========================
-``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)
-``contrast_stretch``    clipped to [0, max_value]       [0, max_value]
-``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]
-``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]
-``lut``                 rounded, clipped to 0..255       the table's values
-``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]
+======================  ==============================  ==================================  ============
+Function                Domain                          Range                               uint8 input
+======================  ==============================  ==================================  ============
+``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)              uint8 out
+``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                      uint8 out
+``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]  uint8 out
+``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]  uint8 out
+``lut``                 rounded, clipped to 0..255       the table's values                  uint8 out
+``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]             float32 out
                         at 1e15 after exposure)
-======================  ==============================  ==========================
+======================  ==============================  ==================================  ============
+
+"uint8 out": the float32 result rounded half to even and clipped to 0..255, as
+:func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
 """
 
 from __future__ import annotations
@@ -40,7 +49,8 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from pointillist.imaging.arrays import TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared, is_uint8,
+                                        opaque_scalar, to_uint8, uint8_array)
 from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, hsv_from_rgb_values, rgb_from_hsv_values,
                                         srgb_encode_values)
 
@@ -118,7 +128,7 @@ def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
 
 # --------------------------------------------------------------------------- shared machinery
 
-def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
+def _u8_indices(image: Any, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
     """Per-pixel UInt32 values of a uint8 image, read in place (no float conversion, no gather).
 
     The bytes are shared with Dr.Jit as a ``UInt8`` array (zero copy for C-contiguous input)
@@ -127,8 +137,8 @@ def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[i
     little-endian UInt32 words (four pixels each, for the pair histogram), or None when the
     image cannot be viewed as whole aligned words.
     """
-    check_shape(image.shape, name, None, False)
-    flat = np.ascontiguousarray(image).reshape(-1)
+    image = uint8_array(image, name)
+    flat = image.reshape(-1)
     return UInt32(UInt8(flat)), tuple(image.shape), _words(flat)
 
 
@@ -148,7 +158,7 @@ def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
     return clean, count
 
 
-def _done(result: TensorXf) -> TensorXf:
+def _done(result: TensorXf | TensorXu8) -> TensorXf | TensorXu8:
     """Evaluate ``result`` and wait for it: uint8 input is read in place, so the kernel must have
     finished before the caller may change or free the array."""
     dr.eval(result)
@@ -156,7 +166,7 @@ def _done(result: TensorXf) -> TensorXf:
     return result
 
 
-def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
+def _finish(result: TensorXf | TensorXu8, count: UInt32, where: str) -> TensorXf | TensorXu8:
     """Evaluate ``result`` together with the non-finite counter and warn with the count."""
     dr.eval(result, count)
     n = int(count[0])
@@ -166,12 +176,14 @@ def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
     return result
 
 
-def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float, where: str) -> TensorXf:
-    """Apply ``function`` per value; uint8 input through a 256-entry table of the same function."""
+def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
+               where: str) -> TensorXf | TensorXu8:
+    """Apply ``function`` per value; uint8 input through a 256-entry table of the same function,
+    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output."""
     if is_uint8(image):
-        table = function(dr.arange(Float, 256))
+        table = to_uint8(function(dr.arange(Float, 256)))
         values, shape, _ = _u8_indices(image)
-        return _done(TensorXf(dr.gather(Float, table, values), shape))
+        return _done(TensorXu8(dr.gather(UInt8, table, values), shape))
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
     return _finish(TensorXf(function(clean), tensor.shape), count, where)
@@ -180,7 +192,7 @@ def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
 # --------------------------------------------------------------------------- operations
 
 @eager_if_shared
-def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf:
+def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Gamma correction V = (I / a)^(1/gamma) on intensities normalised to 0..1.
 
     Parameters
@@ -196,8 +208,8 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        ``max_value * (I / max_value / a)^(1/gamma)``, same shape.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        ``max_value * (I / max_value / a)^(1/gamma)``, same shape; uint8 (rounded) for uint8 input.
 
     Raises
     ------
@@ -236,7 +248,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
 
 @eager_if_shared
 def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
-                     max_value: float = 255.0) -> TensorXf:
+                     max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Piecewise-linear contrast stretching through (0, 0), (r1, s1), (r2, s2), (max, max).
 
     out = s1/r1 in for in < r1; (s2 - s1)/(r2 - r1) (in - r1) + s1 for r1 <= in <= r2;
@@ -255,8 +267,8 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape, values in 0..max_value.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape, values in 0..max_value; uint8 (rounded) for uint8 input.
 
     Raises
     ------
@@ -304,7 +316,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
 
 @eager_if_shared
-def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
+def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Quantise to ``levels`` evenly spaced grey levels spanning 0..max_value.
 
     k = min(floor(I * levels / max_value), levels - 1), out = k * max_value / (levels - 1).
@@ -320,9 +332,10 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
         Same shape, at most ``levels`` distinct values, always including 0 and
-        max_value when the input reaches them.
+        max_value when the input reaches them; uint8 (rounded: levels=3 gives 0, 128, 255)
+        for uint8 input.
 
     Raises
     ------
@@ -371,7 +384,7 @@ def _table(table: Any, channels: int) -> tuple[Float, int]:
 
 
 @eager_if_shared
-def lut(image: Any, table: Any) -> TensorXf:
+def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
     """Apply a 256-entry look-up table to 8-bit data: out = table[I].
 
     Parameters
@@ -385,8 +398,9 @@ def lut(image: Any, table: Any) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape as ``image``, float32 table values.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape as ``image``: float32 table values, or for uint8 input (as ``cv2.LUT`` with a
+        uint8 table) uint8, the table values rounded half to even and clipped to 0..255.
 
     Raises
     ------
@@ -402,6 +416,8 @@ def lut(image: Any, table: Any) -> TensorXf:
     >>> import numpy as np
     >>> from pointillist.imaging.tone import lut
     >>> np.asarray(lut(np.array([[0, 1, 255]], np.uint8), 255 - np.arange(256))).tolist()
+    [[255, 254, 0]]
+    >>> np.asarray(lut(np.array([[0.0, 1.0, 255.0]]), 255 - np.arange(256))).tolist()
     [[255.0, 254.0, 0.0]]
     """
     if is_uint8(image):
@@ -409,7 +425,7 @@ def lut(image: Any, table: Any) -> TensorXf:
         channels = shape[2] if len(shape) == 3 else 1
         table, width = _table(table, channels)
         index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
-        return _done(TensorXf(dr.gather(Float, table, index), shape))
+        return _done(TensorXu8(dr.gather(UInt8, to_uint8(table), index), shape))
     tensor = as_tensor(image)
     channels = tensor.shape[2] if tensor.ndim == 3 else 1
     table, width = _table(table, channels)
@@ -538,7 +554,7 @@ def _bins(image: Any, levels: int, max_value: float):
 
 
 @eager_if_shared
-def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf:
+def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Histogram equalisation (SPEC): F(i) = max(0, round(L t(i) / (h w)) - 1).
 
     t(i) is the cumulative histogram of grey level i, L = ``levels``. Colour
@@ -557,8 +573,9 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape; level F(i) is output as F(i) max_value / (L - 1).
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape; level F(i) is output as F(i) max_value / (L - 1); uint8 (rounded) for uint8
+        input, as ``cv2.equalizeHist``.
 
     Raises
     ------
@@ -578,14 +595,17 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     >>> import numpy as np
     >>> from pointillist.imaging.tone import equalize_histogram
     >>> np.asarray(equalize_histogram(np.array([[0, 0, 0, 255]], np.uint8))).tolist()
-    [[191.0, 191.0, 191.0, 255.0]]
+    [[191, 191, 191, 255]]
     """
     levels = _levels(levels, high=65536)
     max_value = _positive(max_value, "max_value")
-    if is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
-        flat = np.ascontiguousarray(image).reshape(-1)
-        return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value)
-    if not is_uint8(image):
+    eight_bit = is_uint8(image)
+    if eight_bit:
+        image = uint8_array(image)
+    if eight_bit and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
+        flat = image.reshape(-1)
+        return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value, eight_bit=True)
+    if not eight_bit:
         tensor = as_tensor(image, channels=(1, 3))
         if tensor.ndim == 3 and tensor.shape[2] == 3:
             return _equalize_colour(tensor, levels, max_value)
@@ -594,13 +614,16 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     bins, words, tail, shape, count = _bins(image, levels, max_value)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
+    if eight_bit:
+        return _done(TensorXu8(dr.gather(UInt8, to_uint8(table), UInt32(bins)), shape))
     result = TensorXf(dr.gather(Float, table, UInt32(bins)), shape)
     if count is None:
         return _done(result)
     return _finish(result, count, "equalize_histogram")
 
 
-def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorXf:
+def _equalize_colour(tensor: TensorXf, levels: int, max_value: float,
+                     eight_bit: bool = False) -> TensorXf | TensorXu8:
     rgb = dr.unravel(Array3f, tensor.array)
     bad = ~(dr.isfinite(rgb.x) & dr.isfinite(rgb.y) & dr.isfinite(rgb.z))
     count = dr.zeros(UInt32, 1)
@@ -617,7 +640,10 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorX
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
     r, g, b = rgb_from_hsv_values(h, s, dr.gather(Float, table, UInt32(bins)))
-    return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
+    values = dr.ravel(Array3f(r, g, b))
+    if eight_bit:  # rounded in the same pass
+        return _finish(TensorXu8(to_uint8(values), tensor.shape), count, "equalize_histogram")
+    return _finish(TensorXf(values, tensor.shape), count, "equalize_histogram")
 
 
 def _log1p(x: Float) -> Float:
