@@ -588,9 +588,33 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     return _ordered(image, _check_template(template), _check_levels(levels), _check_bool(linear, "linear"))
 
 
+#: Largest pre-tiled threshold map kept (bytes), and how many are kept (by template and shape).
+_TILED_MAP_BYTES = 1 << 26
+_TILED_MAPS = 2
+
+
+@lru_cache(maxsize=_TILED_MAPS)
+def _tiled_map(data: bytes, n: int, shape: tuple[int, ...]) -> UInt8:
+    """The template's 8-bit thresholds ceil(255 T / (n^2 + 1)) tiled over an image of ``shape``
+    (evaluated, one byte per value): for uint8 I, I >= this is the SPEC rule (see
+    :func:`intensity_thresholds`). This is OpenCV's pre-tiled map; reading it is a contiguous
+    stream, where the n x n table costs one gather per pixel (about 2x the whole pass here)."""
+    channels = shape[2] if len(shape) == 3 else 1
+    count = int(np.prod(shape))
+    y, x = _coordinates(count, shape[1], channels)
+    levels = UInt32(np.ceil(_intensity_thresholds(data, n)).astype(np.uint32))  # exact: see the docstring
+    tiled = UInt8(dr.gather(UInt32, levels, _template_index(n, y, x)))
+    dr.eval(tiled)
+    return tiled
+
+
 def _ordered(image: Any, template: np.ndarray, levels: int, linear: bool) -> TensorXf | TensorXu8:
     values, shape = _pixels(image)
     eight_bit = isinstance(values, UInt8)
+    if eight_bit and levels == 2 and not linear and dr.width(values) <= _TILED_MAP_BYTES:
+        # 8-bit, 1 bit: compare the bytes with the cached pre-tiled map (three contiguous streams)
+        up = values >= _tiled_map(template.tobytes(), template.shape[0], shape)
+        return _levels_1bit(up, shape, True)
     values = Float(values)  # uint8: one byte per value, widened inside the kernel (no float32 copy)
     if linear:
         values = _srgb_decode_255(clip_intensity(values))

@@ -176,14 +176,33 @@ def _finish(result: TensorXf | TensorXu8, count: UInt32, where: str) -> TensorXf
     return result
 
 
+def _look_up_bytes(table: UInt32, index: UInt32) -> UInt8:
+    """``table[index]`` for a table of byte values held as UInt32: gathered as 32-bit words, then
+    narrowed (LLVM scalarises a gather of bytes: about 4x slower than the 32-bit hardware gather)."""
+    return UInt8(dr.gather(UInt32, table, index))
+
+
+#: Evaluated uint8 tables of the point operations, by (operation, parameters): a repeated call with
+#: the same parameters launches one kernel (the look-up), as ``cv2.LUT`` with a prepared table.
+_BYTE_TABLES: dict[tuple, UInt32] = {}
+
+
 def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
-               where: str) -> TensorXf | TensorXu8:
+               where: str, key: tuple = ()) -> TensorXf | TensorXu8:
     """Apply ``function`` per value; uint8 input through a 256-entry table of the same function,
-    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output."""
+    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output.
+    ``key`` (the operation and its parameters) caches that table."""
     if is_uint8(image):
-        table = to_uint8(function(dr.arange(Float, 256)))
+        table = _BYTE_TABLES.get(key) if key else None
+        if table is None:
+            table = UInt32(to_uint8(function(dr.arange(Float, 256))))
+            dr.eval(table)
+            if key:
+                if len(_BYTE_TABLES) >= 64:
+                    _BYTE_TABLES.clear()
+                _BYTE_TABLES[key] = table
         values, shape, _ = _u8_indices(image)
-        return _done(TensorXu8(dr.gather(UInt8, table, values), shape))
+        return _done(TensorXu8(_look_up_bytes(table, values), shape))
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
     return _finish(TensorXf(function(clean), tensor.shape), count, where)
@@ -243,7 +262,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
         # which a gamma beyond float32's range (1/gamma = 0 or inf) would otherwise produce.
         return top * dr.select((v == 0.0) | (v == 1.0), v, dr.power(v, exponent))
 
-    return _pointwise(image, curve, max_value, "gamma")
+    return _pointwise(image, curve, max_value, "gamma", ("gamma", g, a, max_value))
 
 
 @eager_if_shared
@@ -312,7 +331,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
         return dr.select(x < b1, k1 * x,
                          dr.select(x <= mid_top, k2 * (x - b1) + o1, k3 * (x - b2) + o2))
 
-    return _pointwise(image, curve, max_value, "contrast_stretch")
+    return _pointwise(image, curve, max_value, "contrast_stretch", ("contrast_stretch", r1, s1, r2, s2, max_value))
 
 
 @eager_if_shared
@@ -364,10 +383,12 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf |
         k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
         return k * step
 
-    return _pointwise(image, curve, max_value, "quantize")
+    return _pointwise(image, curve, max_value, "quantize", ("quantize", levels, max_value))
 
 
-def _table(table: Any, channels: int) -> tuple[Float, int]:
+def _table(table: Any, channels: int, eight_bit: bool = False) -> tuple[Float | UInt32, int]:
+    """The checked table as float32 values, or with ``eight_bit`` as their uint8 rounding held in
+    UInt32 (numpy's rint of the float32 values = :func:`~pointillist.imaging.arrays.to_uint8`, no kernel)."""
     try:
         values = np.asarray(table, dtype=np.float64)
     except (TypeError, ValueError) as error:
@@ -380,7 +401,10 @@ def _table(table: Any, channels: int) -> tuple[Float, int]:
     if not np.all(np.isfinite(values)):
         raise ValueError("table: expected finite values")
     width = 1 if values.ndim == 1 else channels
-    return Float(np.ascontiguousarray(values, dtype=np.float32).reshape(-1)), width
+    values = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+    if eight_bit:
+        return UInt32(np.rint(np.clip(values, 0, 255)).astype(np.uint32)), width
+    return Float(values), width
 
 
 @eager_if_shared
@@ -423,9 +447,9 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
     if is_uint8(image):
         values, shape, _ = _u8_indices(image)
         channels = shape[2] if len(shape) == 3 else 1
-        table, width = _table(table, channels)
+        table, width = _table(table, channels, eight_bit=True)
         index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
-        return _done(TensorXu8(dr.gather(UInt8, to_uint8(table), index), shape))
+        return _done(TensorXu8(_look_up_bytes(table, index), shape))
     tensor = as_tensor(image)
     channels = tensor.shape[2] if tensor.ndim == 3 else 1
     table, width = _table(table, channels)
@@ -615,7 +639,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
     if eight_bit:
-        return _done(TensorXu8(dr.gather(UInt8, to_uint8(table), UInt32(bins)), shape))
+        return _done(TensorXu8(_look_up_bytes(UInt32(to_uint8(table)), UInt32(bins)), shape))
     result = TensorXf(dr.gather(Float, table, UInt32(bins)), shape)
     if count is None:
         return _done(result)

@@ -307,3 +307,20 @@ def test_float32_single_product_divmod_is_exact_below_2_to_22():
         q, r = divmod_u32(UInt32(a), divisor, top)
         assert np.array_equal(np.asarray(q), a // divisor), divisor
         assert np.array_equal(np.asarray(r), a % divisor), divisor
+
+
+def test_uint8_pre_tiled_map_equals_the_table_path(monkeypatch):
+    """1-bit uint8 ordered dithering compares the bytes with a cached pre-tiled byte map; it equals
+    the per-pixel table route (taken above the size limit) and the SPEC rule, for every shape."""
+    import pointillist.imaging.dither as dither_module
+
+    rng = np.random.default_rng(11)
+    for shape in ((37, 45), (16, 64, 3), (5, 7, 1), (64, 70)):
+        image = rng.integers(0, 256, shape).astype(np.uint8)
+        for template in (TEMPLATE_4, bayer(8), blue_noise_mask(), clustered_dot(3)):
+            mapped = np.asarray(ordered(image, template))
+            assert mapped.dtype == np.uint8
+            assert np.array_equal(mapped, np.asarray(ordered(image.astype(np.float32), template)))
+            monkeypatch.setattr(dither_module, "_TILED_MAP_BYTES", 0)
+            assert np.array_equal(np.asarray(ordered(image, template)), mapped)
+            monkeypatch.undo()
