@@ -13,6 +13,12 @@ Part A: a 512^3 int16 Shepp-Logan CT, 512x512 orthographic image.
 Part B (``--ct``): a clinical-size CT, 512 x 512 x 1800 int16 (about 0.94 GB), oblique 512x512
   MIP in a subprocess that builds the volume and renders it; its peak RSS comes from
   ``resource.getrusage`` (goal: < 10 s and peak < 3x the volume's size).
+Part C (``--axis``, issue 23 goal 1): axis-aligned ``--native-size --interpolation nearest`` MIP
+  of a 512^3 int16 CT-like volume with noise, for axial, coronal and sagittal, against numpy's
+  single-threaded ``max(axis)``, in interleaved rounds (ours, the previous column kernels
+  ``--before REV`` on the same integrator, numpy), medians and minima; every image checked equal to
+  numpy's; peak RSS of the process (volume + texture + renders) over the volume's bytes
+  (goal: ours at most 1.0x numpy per view, peak at most 2.5x). Runs in a subprocess.
 JIT compile (first call) is reported apart from the steady state (median of repeats).
 """
 
@@ -161,6 +167,115 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
                       "texture": integrator.texture_info(), "image_max": float(image.max())}))
 
 
+def noisy_ct(n: int, seed: int = 0) -> np.ndarray:
+    """A CT-like int16 volume: the Shepp-Logan phantom plus Gaussian noise (sigma 20 HU) everywhere,
+    air and soft tissue included (built in slabs: no full-size float temporary)."""
+    from pointillist.imaging.volumes import shepp_logan_phantom
+
+    vol = shepp_logan_phantom(n)
+    rng = np.random.default_rng(seed)
+    for z in range(0, n, 32):
+        slab = vol[z:z + 32].astype(np.float32) + rng.normal(0.0, 20.0, vol[z:z + 32].shape).astype(np.float32)
+        vol[z:z + 32] = np.clip(np.rint(slab), -32768, 32767).astype(np.int16)
+    return vol
+
+
+def part_c_child(n: int, rounds: int, before: str | None) -> None:
+    """Axis-aligned MIP vs numpy, interleaved; prints one JSON line."""
+    import importlib.util
+
+    import pointillist
+
+    mi = pointillist.setup()
+    import drjit as dr
+
+    from pointillist.imaging.volumes import Volume
+    from pointillist.mip import project_volume
+    from pointillist.plugins.integrators import _mip_accel
+
+    baseline = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # interpreter + Mitsuba + Dr.Jit
+    vol = noisy_ct(n)
+    volume = Volume(vol)
+    old = None
+    if before:
+        source = subprocess.run(["git", "-C", str(ROOT), "show", f"{before}:plugins/integrators/_mip_accel.py"],
+                                capture_output=True, text=True, check=True).stdout
+        spec = importlib.util.spec_from_loader("_mip_accel_before", loader=None)
+        old = importlib.util.module_from_spec(spec)
+        exec(compile(source, f"{before}:_mip_accel.py", "exec"), old.__dict__)
+    current = _mip_accel.reduce_half_keys
+    out = {"n": n, "rounds": rounds, "before": before, "views": {}}
+    integrators = {}
+    views = (("axial", 0), ("coronal", 1), ("sagittal", 2))
+    for name, axis in views:
+        t = time.perf_counter()
+        image, integrators[name] = project_volume(volume, view=name, native=True, interpolation="nearest",
+                                                  integrator=integrators.get("axial"))
+        first = time.perf_counter() - t
+        expected = vol.max(axis=axis).astype(np.float32)
+        exact = any(np.array_equal(image, e) for e in (expected, expected[::-1], expected[:, ::-1],
+                                                       expected[::-1, ::-1]))
+        out["views"][name] = {"first_s": first, "path": integrators[name].last_path, "equals_numpy": exact,
+                              "ours": [], "before": [], "numpy": []}
+    for _ in range(rounds):
+        for name, axis in views:
+            row = out["views"][name]
+            t = time.perf_counter()
+            project_volume(volume, view=name, native=True, integrator=integrators[name])
+            row["ours"].append(time.perf_counter() - t)
+            if old is not None:
+                _mip_accel.reduce_half_keys = old.reduce_half_keys
+                try:
+                    t = time.perf_counter()
+                    project_volume(volume, view=name, native=True, integrator=integrators[name])
+                    row["before"].append(time.perf_counter() - t)
+                finally:
+                    _mip_accel.reduce_half_keys = current
+            t = time.perf_counter()
+            vol.max(axis=axis)
+            row["numpy"].append(time.perf_counter() - t)
+    dr.sync_thread()
+    out["peak_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    out["baseline_rss"] = baseline
+    out["volume_bytes"] = vol.nbytes
+    out["texture"] = integrators["axial"].texture_info()
+    import os
+
+    out["load_average"] = os.getloadavg()
+    print(json.dumps(out))
+
+
+def part_c(n: int, rounds: int, before: str | None) -> dict:
+    cmd = [sys.executable, __file__, "--axis-child", f"{n},{rounds},{before or ''}"]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+    if result.returncode != 0:
+        raise RuntimeError(result.stderr[-2000:])
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def print_part_c(c: dict) -> None:
+    n = c["n"]
+    print(f"\nAxis-aligned MIP, {n}^3 int16 CT-like volume with noise (sigma 20 HU), native size, nearest, "
+          f"{c['rounds']} interleaved rounds (load average at the end {c['load_average'][0]:.1f}); ms, median (min)")
+    head = "| view | ours | " + ("before (" + c["before"][:10] + ") | " if c["before"] else "") + \
+        "numpy max(axis) 1 thread | ours / numpy (medians) | (minima) | goal | met | first call (s) | equal to numpy |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
+    for name, row in c["views"].items():
+        med = {k: float(np.median(v)) * 1e3 for k, v in row.items() if isinstance(v, list) and v}
+        low = {k: float(np.min(v)) * 1e3 for k, v in row.items() if isinstance(v, list) and v}
+        ratio, ratio_min = med["ours"] / med["numpy"], low["ours"] / low["numpy"]
+        before = f"{med['before']:.1f} ({low['before']:.1f}) | " if c["before"] else ""
+        met = "yes" if ratio <= 1.0 else "min only" if ratio_min <= 1.0 else "NO"
+        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) "
+              f"| {ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
+    grown = c["peak_rss"] - c["baseline_rss"]
+    print(f"\nPeak RSS (volume build + half texture + the three views): {c['peak_rss'] / 2**20:.0f} MiB = "
+          f"{c['peak_rss'] / c['volume_bytes']:.2f}x the volume ({c['volume_bytes'] / 2**20:.0f} MiB; goal <= 2.5x); "
+          f"above the process's RSS before the volume was built ({c['baseline_rss'] / 2**20:.0f} MiB: Python, "
+          f"Mitsuba, Dr.Jit): {grown / 2**20:.0f} MiB = {grown / c['volume_bytes']:.2f}x; texture {c['texture']}")
+
+
 def part_b(shape) -> dict:
     cmd = [sys.executable, __file__, "--child", ",".join(map(str, shape))]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
@@ -174,10 +289,23 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--ct", action="store_true", help="also run part B (512x512x1800 CT)")
+    parser.add_argument("--axis", action="store_true", help="only part C (axis-aligned views vs numpy)")
+    parser.add_argument("--rounds", type=int, default=7, help="part C: interleaved rounds")
+    parser.add_argument("--before", help="part C: also time the column kernels of git revision REV")
     parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--axis-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         part_b_child(tuple(int(s) for s in args.child.split(",")))
+        return
+    if args.axis_child:
+        n, rounds, before = args.axis_child.split(",")
+        part_c_child(int(n), int(rounds), before or None)
+        return
+    if args.axis:
+        c = part_c(args.size, args.rounds, args.before)
+        print(json.dumps(c))
+        print_part_c(c)
         return
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
     a = part_a(args.size, args.repeats)
