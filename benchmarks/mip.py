@@ -19,6 +19,13 @@ Part C (``--axis``, issue 23 goal 1): axis-aligned ``--native-size --interpolati
   ``--before REV`` on the same integrator, numpy), medians and minima; every image checked equal to
   numpy's; peak RSS of the process (volume + texture + renders) over the volume's bytes
   (goal: ours at most 1.0x numpy per view, peak at most 2.5x). Runs in a subprocess.
+Part D (``--vtk``, issue 23 goal 2; needs the ``bench`` extra: ``pip install -e .[bench]``): oblique
+  MIP (azimuth 30, elevation 20, 512x512, step 0.5 voxel, trilinear, brick skipping) against VTK's CPU
+  ray caster ``vtkFixedPointVolumeRayCastMapper`` (maximum-intensity blend, 2 threads, sample distance
+  0.5, auto-adjust off, off-screen window, parallel projection framing the volume's box as ours
+  does), per image (interleaved rounds) and for the first image of a new volume (ours: texture +
+  brick grid + render; VTK: mapper set-up + first render), on the noisy CT-like volume and on the
+  phantom. Runs in a subprocess per volume.
 JIT compile (first call) is reported apart from the steady state (median of repeats).
 """
 
@@ -216,7 +223,18 @@ def part_c_child(n: int, rounds: int, before: str | None) -> None:
         exact = any(np.array_equal(image, e) for e in (expected, expected[::-1], expected[:, ::-1],
                                                        expected[::-1, ::-1]))
         out["views"][name] = {"first_s": first, "path": integrators[name].last_path, "equals_numpy": exact,
-                              "ours": [], "before": [], "numpy": []}
+                              "ours": [], "before": [], "numpy": [], "sitk": []}
+    # ours' peak: volume + texture + the first image of each view (the steady renders allocate the
+    # same), taken before SimpleITK is loaded and copies the volume into an ITK image
+    out["peak_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    try:  # the bench extra: SimpleITK's MaximumProjection (ITK image axes are x, y, z)
+        import SimpleITK as sitk
+
+        sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(2)
+        itk_image = sitk.GetImageFromArray(vol)
+        out["sitk_version"] = sitk.Version.VersionString()
+    except ImportError:
+        sitk = None
     for _ in range(rounds):
         for name, axis in views:
             row = out["views"][name]
@@ -234,8 +252,12 @@ def part_c_child(n: int, rounds: int, before: str | None) -> None:
             t = time.perf_counter()
             vol.max(axis=axis)
             row["numpy"].append(time.perf_counter() - t)
+            if sitk is not None:
+                t = time.perf_counter()
+                sitk.MaximumProjection(itk_image, 2 - axis)
+                row["sitk"].append(time.perf_counter() - t)
     dr.sync_thread()
-    out["peak_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    out["peak_rss_with_peers"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     out["baseline_rss"] = baseline
     out["volume_bytes"] = vol.nbytes
     out["texture"] = integrators["axial"].texture_info()
@@ -257,8 +279,10 @@ def print_part_c(c: dict) -> None:
     n = c["n"]
     print(f"\nAxis-aligned MIP, {n}^3 int16 CT-like volume with noise (sigma 20 HU), native size, nearest, "
           f"{c['rounds']} interleaved rounds (load average at the end {c['load_average'][0]:.1f}); ms, median (min)")
+    sitk_on = bool(next(iter(c["views"].values()))["sitk"])
     head = "| view | ours | " + ("before (" + c["before"][:10] + ") | " if c["before"] else "") + \
-        "numpy max(axis) 1 thread | ours / numpy (medians) | (minima) | goal | met | first call (s) | equal to numpy |"
+        "numpy max(axis) 1 thread | " + ("SimpleITK MaximumProjection 2 threads | " if sitk_on else "") + \
+        "ours / numpy (medians) | (minima) | goal | met | first call (s) | equal to numpy |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for name, row in c["views"].items():
@@ -266,14 +290,140 @@ def print_part_c(c: dict) -> None:
         low = {k: float(np.min(v)) * 1e3 for k, v in row.items() if isinstance(v, list) and v}
         ratio, ratio_min = med["ours"] / med["numpy"], low["ours"] / low["numpy"]
         before = f"{med['before']:.1f} ({low['before']:.1f}) | " if c["before"] else ""
+        itk = f"{med['sitk']:.1f} ({low['sitk']:.1f}) | " if sitk_on else ""
         met = "yes" if ratio <= 1.0 else "min only" if ratio_min <= 1.0 else "NO"
-        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) "
-              f"| {ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
+        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) | {itk}"
+              f"{ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
     grown = c["peak_rss"] - c["baseline_rss"]
     print(f"\nPeak RSS (volume build + half texture + the three views): {c['peak_rss'] / 2**20:.0f} MiB = "
           f"{c['peak_rss'] / c['volume_bytes']:.2f}x the volume ({c['volume_bytes'] / 2**20:.0f} MiB; goal <= 2.5x); "
           f"above the process's RSS before the volume was built ({c['baseline_rss'] / 2**20:.0f} MiB: Python, "
           f"Mitsuba, Dr.Jit): {grown / 2**20:.0f} MiB = {grown / c['volume_bytes']:.2f}x; texture {c['texture']}")
+
+
+def part_d_child(kind: str, n: int, rounds: int) -> None:
+    """Oblique MIP, ours vs VTK's fixed-point CPU ray caster; prints one JSON line."""
+    import vtk
+    from vtk.util import numpy_support
+
+    import pointillist
+
+    mi = pointillist.setup()
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
+    from pointillist.mip import project_volume, view_axes, view_frame
+
+    vol = noisy_ct(n) if kind == "noisy" else shepp_logan_phantom(n)
+    volume = Volume(vol)
+    size = (512, 512)
+    axes = view_axes(None, 30.0, 20.0)
+    view = dict(view=None, azimuth=30.0, elevation=20.0, size=size)
+    out = {"kind": kind, "n": n, "rounds": rounds}
+
+    t = time.perf_counter()
+    integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5})
+    integrator.set_volume(volume)
+    integrator.brick_bounds()
+    ours_image, _ = project_volume(volume, integrator=integrator, **view)
+    out["ours_first"] = time.perf_counter() - t
+
+    def vtk_setup():
+        nz, ny, nx = vol.shape
+        data = vtk.vtkImageData()
+        data.SetDimensions(nx, ny, nz)
+        data.SetSpacing(1.0, 1.0, 1.0)
+        data.SetOrigin(-(nx - 1) / 2, -(ny - 1) / 2, -(nz - 1) / 2)  # voxel centres as ours, box centred
+        data.GetPointData().SetScalars(numpy_support.numpy_to_vtk(vol.ravel(), deep=False,
+                                                                  array_type=vtk.VTK_SHORT))
+        mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+        mapper.SetInputData(data)
+        mapper.SetBlendModeToMaximumIntensity()
+        mapper.SetAutoAdjustSampleDistances(0)
+        mapper.SetSampleDistance(0.5)
+        mapper.SetNumberOfThreads(2)
+        lo, hi = float(vol.min()), float(vol.max())
+        opacity, colour = vtk.vtkPiecewiseFunction(), vtk.vtkColorTransferFunction()
+        opacity.AddPoint(lo, 1.0)
+        opacity.AddPoint(hi, 1.0)
+        colour.AddRGBPoint(lo, 0.0, 0.0, 0.0)
+        colour.AddRGBPoint(hi, 1.0, 1.0, 1.0)
+        prop = vtk.vtkVolumeProperty()
+        prop.SetScalarOpacity(opacity)
+        prop.SetColor(colour)
+        prop.SetInterpolationTypeToLinear()
+        actor = vtk.vtkVolume()
+        actor.SetMapper(mapper)
+        actor.SetProperty(prop)
+        renderer = vtk.vtkRenderer()
+        renderer.AddVolume(actor)
+        window = vtk.vtkRenderWindow()
+        window.SetOffScreenRendering(1)
+        window.AddRenderer(renderer)
+        window.SetSize(*size)
+        right, up, forward = axes
+        (_, _), half_w, half_h = view_frame(volume.extent, axes, size=size)
+        camera = renderer.GetActiveCamera()
+        camera.ParallelProjectionOn()
+        distance = 2.0 * float(np.linalg.norm(volume.extent))
+        camera.SetFocalPoint(0.0, 0.0, 0.0)
+        camera.SetPosition(*(-forward * distance))
+        camera.SetViewUp(*up)
+        camera.SetParallelScale(half_h)
+        camera.SetClippingRange(distance / 4, distance * 4)
+        return window, camera, mapper
+
+    t = time.perf_counter()
+    window, camera, mapper = vtk_setup()
+    window.Render()
+    out["vtk_first"] = time.perf_counter() - t
+    grab = vtk.vtkWindowToImageFilter()
+    grab.SetInput(window)
+    grab.Update()
+    shot = numpy_support.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
+    out["vtk_image_mean"] = float(shot.mean())
+    out["ours"], out["vtk"] = [], []
+    for _ in range(rounds):
+        t = time.perf_counter()
+        project_volume(volume, integrator=integrator, **view)
+        out["ours"].append(time.perf_counter() - t)
+        camera.Modified()  # a new frame: the mapper casts every ray again
+        t = time.perf_counter()
+        window.Render()
+        out["vtk"].append(time.perf_counter() - t)
+    out["vtk_time_to_draw"] = mapper.GetTimeToDraw()
+    out["ours_image_max"] = float(np.max(ours_image))
+    import os
+
+    out["load_average"] = os.getloadavg()
+    out["vtk_version"] = vtk.vtkVersion.GetVTKVersion()
+    print(json.dumps(out))
+
+
+def part_d(n: int, rounds: int) -> list[dict]:
+    results = []
+    for kind in ("noisy", "phantom"):
+        cmd = [sys.executable, __file__, "--vtk-child", f"{kind},{n},{rounds}"]
+        result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+        if result.returncode != 0:
+            raise RuntimeError(result.stderr[-2000:])
+        results.append(json.loads(result.stdout.strip().splitlines()[-1]))
+    return results
+
+
+def print_part_d(rows: list[dict]) -> None:
+    print(f"\nOblique MIP (azimuth 30, elevation 20, 512x512, step 0.5, trilinear; ours with brick skipping) vs "
+          f"VTK {rows[0]['vtk_version']} vtkFixedPointVolumeRayCastMapper (MIP, 2 threads, sample distance 0.5), "
+          f"{rows[0]['rounds']} interleaved rounds; s, median (min)")
+    print("| volume | ours per image | VTK per image | ours / VTK (medians) | (minima) | goal | met "
+          "| ours first image | VTK first image | first: ours / VTK | goal | met |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        om, vm = float(np.median(r["ours"])), float(np.median(r["vtk"]))
+        ratio, ratio_min = om / vm, min(r["ours"]) / min(r["vtk"])
+        first = r["ours_first"] / r["vtk_first"]
+        met = "yes" if ratio <= 0.2 else "min only" if ratio_min <= 0.2 else "NO"
+        print(f"| {r['n']}^3 {r['kind']} | {om:.3f} ({min(r['ours']):.3f}) | {vm:.3f} ({min(r['vtk']):.3f}) "
+              f"| {ratio:.2f} | {ratio_min:.2f} | <= 0.2 | {met} | {r['ours_first']:.2f} | {r['vtk_first']:.2f} "
+              f"| {first:.2f} | <= 1.0 | {'yes' if first <= 1.0 else 'NO'} |")
 
 
 def part_b(shape) -> dict:
@@ -294,6 +444,8 @@ def main() -> None:
     parser.add_argument("--before", help="part C: also time the column kernels of git revision REV")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--axis-child", help=argparse.SUPPRESS)
+    parser.add_argument("--vtk", action="store_true", help="only part D (oblique MIP vs VTK's CPU ray caster)")
+    parser.add_argument("--vtk-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         part_b_child(tuple(int(s) for s in args.child.split(",")))
@@ -301,6 +453,15 @@ def main() -> None:
     if args.axis_child:
         n, rounds, before = args.axis_child.split(",")
         part_c_child(int(n), int(rounds), before or None)
+        return
+    if args.vtk_child:
+        kind, n, rounds = args.vtk_child.split(",")
+        part_d_child(kind, int(n), int(rounds))
+        return
+    if args.vtk:
+        d = part_d(args.size, args.rounds)
+        print(json.dumps(d))
+        print_part_d(d)
         return
     if args.axis:
         c = part_c(args.size, args.rounds, args.before)
