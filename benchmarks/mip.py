@@ -193,7 +193,7 @@ def part_c_child(n: int, rounds: int, before: str | None) -> None:
 
     import pointillist
 
-    mi = pointillist.setup()
+    pointillist.setup()
     import drjit as dr
 
     from pointillist.imaging.volumes import Volume
@@ -292,8 +292,8 @@ def print_part_c(c: dict) -> None:
         before = f"{med['before']:.1f} ({low['before']:.1f}) | " if c["before"] else ""
         itk = f"{med['sitk']:.1f} ({low['sitk']:.1f}) | " if sitk_on else ""
         met = "yes" if ratio <= 1.0 else "min only" if ratio_min <= 1.0 else "NO"
-        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) | {itk}"
-              f"{ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
+        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) | "
+              f"{itk}{ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
     grown = c["peak_rss"] - c["baseline_rss"]
     print(f"\nPeak RSS (volume build + half texture + the three views): {c['peak_rss'] / 2**20:.0f} MiB = "
           f"{c['peak_rss'] / c['volume_bytes']:.2f}x the volume ({c['volume_bytes'] / 2**20:.0f} MiB; goal <= 2.5x); "
