@@ -241,7 +241,7 @@ def reduce_half_keys(words, shape_zyx, axis: int, mode: str, *, chunk: int | Non
     start_keys = [dr.full(mi.UInt32, start, lanes) for _ in range(packet)]
     _, _, lo, hi = dr.while_loop((mi.UInt32(0), index, start_keys, [dr.full(mi.UInt32, start, lanes)
                                                                     for _ in range(packet)]),
-                                 lambda a, i, l, h: a < length, body, label="mip_keys_chunk")
+                                 lambda a, *state: a < length, body, label="mip_keys_chunk")
     pairs = outer * inner
     # across chunks: partial (o, c, i) -> (o, i). Both 16-bit keys packed in one word: one
     # evaluated array (two separate outputs ran the reduction twice as long here); a lane's
