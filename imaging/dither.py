@@ -252,12 +252,17 @@ def _diffuse(image: Any, kernel: DiffusionKernel, *, level: float, levels: int, 
     levels = _check_levels(levels)
     serpentine = _check_bool(serpentine, "serpentine")
     linear = _check_bool(linear, "linear")
-    values, shape = _pixels(image)  # uint8 bytes are widened as the loop reads them
+    values, shape = _pixels(image)
     eight_bit = isinstance(values, UInt8)
     clip = False
     if linear:
         values = _srgb_decode_255(clip_intensity(Float(values)))
-    elif not isinstance(values, UInt8):  # clipped in the diffusion loop itself: no separate pass
+    elif eight_bit:
+        # widened to float32 in one pass first: the loop's per-step gather of single bytes is
+        # scalarised by LLVM (measured: 19-20 ms per 2048^2 Floyd-Steinberg, against 11-12 ms
+        # for float32 input; the widening pass costs about 0.5 ms)
+        values = Float(values)
+    else:  # clipped in the diffusion loop itself: no separate pass
         clip = True
     dr.eval(values)
     height, width = shape[0], shape[1]

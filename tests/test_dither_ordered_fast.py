@@ -221,12 +221,15 @@ def test_diffusion_is_one_kernel_launch():
     dr.eval(tensor)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
-        for source in (tensor, image.clip(0, 255).astype(np.uint8)):
+        # float32: one launch (clipped in the loop); uint8: the bytes widened in one pass first (a
+        # byte gather per step is scalarised), then the diffusion writing bytes
+        for source, widen in ((tensor, 0), (image.clip(0, 255).astype(np.uint8), 1)):
             dr.eval(floyd_steinberg(source))
             dr.kernel_history()
             dr.eval(floyd_steinberg(source))
             launches = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
-            assert len(launches) == 1
+            assert len(launches) == 1 + widen
+            assert sum(e["size"] == image.size for e in launches) == widen  # the widening pass: one lane a pixel
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
 
