@@ -187,6 +187,14 @@ def kernel_profile(function, calls: int = 5) -> tuple[int, float, bool]:
 
 
 NOTES = [
+    "Issue 23 goals, this run (2026-12-01, loaded: other agents' test suites and benchmarks ran throughout, load "
+    "average 3-10 on 2 cores; no quiet run was possible, so the quiet-machine column the issue asks for is missing): "
+    "uint8 gamma 0.87x cv2.LUT by medians (0.47x by minima), met; uint8 lut 1.56x by medians but 0.46x by minima and "
+    "1.1 ms vs 2.4 ms at best (a 0.45 ms kernel; its median moves between 0.76x and 3.5x from run to run with the "
+    "load: three runs gave 3.55 / 0.76 / 1.56), met by the minima only; uint8 equalize_histogram 2.0x "
+    "cv2.equalizeHist (1.96x by minima), not met (bound below). Medians here are dominated by preemption of Dr.Jit's "
+    "2 worker threads; the minima and the kernel column are the machine's undisturbed cost.",
+    "",
     "Issue 23 (8-bit in, 8-bit out): uint8 input now gives uint8 output (lut, gamma, contrast_stretch, quantize, "
     "equalize_histogram), 1 byte written per pixel as OpenCV does. The earlier \"fair\" rows (uint8 in, float32 "
     "out on both sides) are gone: the uint8 rows are byte for byte now.",
