@@ -593,8 +593,9 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
     return _ordered(image, _check_template(template), _check_levels(levels), _check_bool(linear, "linear"))
 
 
-#: Largest pre-tiled threshold map kept (bytes), and how many are kept (by template and shape).
-_TILED_MAP_BYTES = 1 << 26
+#: Largest pre-tiled threshold map kept (bytes: 16 MiB, e.g. 4096 x 4096 grey; larger images use the per-pixel
+#: table), and how many are kept (by template and shape).
+_TILED_MAP_BYTES = 1 << 24
 _TILED_MAPS = 2
 
 
