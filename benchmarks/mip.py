@@ -26,6 +26,11 @@ Part D (``--vtk``, issue 23 goal 2; needs the ``bench`` extra: ``pip install -e 
   does), per image (interleaved rounds) and for the first image of a new volume (ours: texture +
   brick grid + render; VTK: mapper set-up + first render), on the noisy CT-like volume and on the
   phantom. Runs in a subprocess per volume.
+Part E (``--bounds``): what bounds parts C and D, in one process on the noisy volume: a Dr.Jit pass
+  reading the half storage as contiguous slice streams with one OR per word (the memory floor), the
+  same streams reduced with the half keys, the packet-gather column kernel, numpy ``max(axis)`` on 1
+  and on 2 threads (halves of a kept axis), interleaved rounds (kernel times from Dr.Jit's kernel
+  history); then the oblique render with and without brick skipping on the noisy volume and the phantom.
 JIT compile (first call) is reported apart from the steady state (median of repeats).
 """
 
@@ -426,6 +431,127 @@ def print_part_d(rows: list[dict]) -> None:
               f"| {first:.2f} | <= 1.0 | {'yes' if first <= 1.0 else 'NO'} |")
 
 
+def part_e_child(n: int, rounds: int) -> None:
+    """Bounds of the axis-aligned and oblique paths; prints one JSON line."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import pointillist
+
+    mi = pointillist.setup()
+    import drjit as dr
+
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
+    from pointillist.mip import project_volume
+    from pointillist.plugins.integrators import _mip_accel as accel
+
+    vol = noisy_ct(n)
+    flat = vol.astype(np.float16).reshape(-1).view(np.uint32)  # the texture's bytes (offset aside)
+    words = mi.UInt32(flat)
+    plane = flat.size // n
+    slices = [mi.UInt32(flat[z * plane:(z + 1) * plane]) for z in range(n)]  # zero-copy views
+    dr.eval(words)
+
+    def streams(combine, group=64):
+        partial = []
+        for g in range(0, n, group):
+            acc = None
+            for z in range(g, min(n, g + group)):
+                acc = combine(acc, slices[z])
+            dr.eval(acc)
+            partial.append(acc)
+        acc = None
+        for p in partial:
+            acc = combine(acc, p)
+        return acc
+
+    def or_pass(acc, w):
+        return w if acc is None else acc | w
+
+    def key_pass(acc, w):
+        lo, hi = accel._half_key(w)
+        packed = lo | (hi << 16)
+        if acc is None:
+            return packed
+        return dr.maximum(acc & 0xFFFF, lo) | (dr.maximum(acc >> 16, hi) << 16)
+
+    pool = ThreadPoolExecutor(2)
+
+    def numpy_two(axis):
+        keep = 1 if axis != 1 else 0
+        cut = n // 2
+
+        def part(lo_hi):
+            index = [slice(None)] * 3
+            index[keep] = slice(*lo_hi)
+            return vol[tuple(index)].max(axis=axis)
+
+        return list(pool.map(part, ((0, cut), (cut, n))))
+
+    cases = {"Dr.Jit OR pass over slice streams (floor)": lambda: streams(or_pass),
+             "Dr.Jit half-key max over slice streams": lambda: streams(key_pass),
+             "Dr.Jit packet-gather column kernel (axial)": lambda: accel.reduce_half_keys(words, vol.shape, 2, "mip")}
+    numpy_cases = {f"numpy max(axis={a}), {t} thread{'s' if t > 1 else ''}": (
+        (lambda a=a: vol.max(axis=a)) if t == 1 else (lambda a=a: numpy_two(a))) for a in (0, 1, 2) for t in (1, 2)}
+    times = {name: [] for name in (*cases, *numpy_cases)}
+    kernels = {name: [] for name in cases}
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    for round_ in range(rounds + 1):
+        for name, call in cases.items():
+            dr.kernel_history()
+            t = time.perf_counter()
+            dr.eval(call())
+            dr.sync_thread()
+            if round_:
+                times[name].append(time.perf_counter() - t)
+                kernels[name].append(sum(e["execution_time"] for e in dr.kernel_history()
+                                         if e["type"] == dr.KernelType.JIT) / 1e3)
+        for name, call in numpy_cases.items():
+            t = time.perf_counter()
+            call()
+            if round_:
+                times[name].append(time.perf_counter() - t)
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    out = {"n": n, "rounds": rounds, "times": times, "kernels": kernels}
+    del slices, words
+    view = dict(view=None, azimuth=30.0, elevation=20.0, size=(512, 512))
+    for kind in ("noisy", "phantom"):
+        volume = Volume(vol if kind == "noisy" else shepp_logan_phantom(n))
+        for skip in (True, False):
+            integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5, "skip_bricks": skip})
+            integrator.set_volume(volume)
+            if skip:
+                upper = np.asarray(integrator.brick_bounds()[0])
+                out[f"{kind}_brick_max_p90"] = float(np.quantile(upper[np.isfinite(upper)], 0.9))
+            project_volume(volume, integrator=integrator, **view)
+            runs = []
+            for _ in range(2):
+                t = time.perf_counter()
+                project_volume(volume, integrator=integrator, **view)
+                runs.append(time.perf_counter() - t)
+            out[f"{kind}_{'bricks' if skip else 'march'}"] = min(runs)
+    import os
+
+    out["load_average"] = os.getloadavg()
+    print(json.dumps(out))
+
+
+def print_part_e(e: dict) -> None:
+    print(f"\nBounds, {e['n']}^3 noisy int16, {e['rounds']} interleaved rounds (load average at the end "
+          f"{e['load_average'][0]:.1f}); ms, median (min); Dr.Jit rows also give their kernel time")
+    print("| pass | wall | kernels |")
+    print("|---|---|---|")
+    for name, t in e["times"].items():
+        kern = e["kernels"].get(name)
+        k = f"{np.median(kern) * 1e3:.1f} ({np.min(kern) * 1e3:.1f})" if kern else "-"
+        print(f"| {name} | {np.median(t) * 1e3:.1f} ({np.min(t) * 1e3:.1f}) | {k} |")
+    print("\n| oblique 30/20, 512x512, trilinear, step 0.5 (min of 2, s) | brick skipping | plain march | gain "
+          "| 90th percentile of brick maxima |")
+    print("|---|---|---|---|---|")
+    for kind in ("noisy", "phantom"):
+        b, m = e[f"{kind}_bricks"], e[f"{kind}_march"]
+        print(f"| {kind} | {b:.2f} | {m:.2f} | {m / b:.1f}x | {e[f'{kind}_brick_max_p90']:.0f} |")
+
+
 def part_b(shape) -> dict:
     cmd = [sys.executable, __file__, "--child", ",".join(map(str, shape))]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
@@ -446,6 +572,8 @@ def main() -> None:
     parser.add_argument("--axis-child", help=argparse.SUPPRESS)
     parser.add_argument("--vtk", action="store_true", help="only part D (oblique MIP vs VTK's CPU ray caster)")
     parser.add_argument("--vtk-child", help=argparse.SUPPRESS)
+    parser.add_argument("--bounds", action="store_true", help="only part E (what bounds parts C and D)")
+    parser.add_argument("--bounds-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         part_b_child(tuple(int(s) for s in args.child.split(",")))
@@ -457,6 +585,19 @@ def main() -> None:
     if args.vtk_child:
         kind, n, rounds = args.vtk_child.split(",")
         part_d_child(kind, int(n), int(rounds))
+        return
+    if args.bounds_child:
+        n, rounds = args.bounds_child.split(",")
+        part_e_child(int(n), int(rounds))
+        return
+    if args.bounds:
+        cmd = [sys.executable, __file__, "--bounds-child", f"{args.size},{args.rounds}"]
+        result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+        if result.returncode != 0:
+            raise RuntimeError(result.stderr[-2000:])
+        e = json.loads(result.stdout.strip().splitlines()[-1])
+        print(json.dumps(e))
+        print_part_e(e)
         return
     if args.vtk:
         d = part_d(args.size, args.rounds)
