@@ -489,7 +489,7 @@ def part_e_child(n: int, rounds: int) -> None:
 
     cases = {"Dr.Jit OR pass over slice streams (floor)": lambda: streams(or_pass),
              "Dr.Jit half-key max over slice streams": lambda: streams(key_pass),
-             "Dr.Jit packet-gather column kernel (axial)": lambda: accel.reduce_half_keys(words, vol.shape, 2, "mip")}
+             "reduce_half_keys, axial (as shipped)": lambda: accel.reduce_half_keys(words, vol.shape, 2, "mip")}
     numpy_cases = {f"numpy max(axis={a}), {t} thread{'s' if t > 1 else ''}": (
         (lambda a=a: vol.max(axis=a)) if t == 1 else (lambda a=a: numpy_two(a))) for a in (0, 1, 2) for t in (1, 2)}
     times = {name: [] for name in (*cases, *numpy_cases)}
