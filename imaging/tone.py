@@ -182,22 +182,40 @@ def _look_up_bytes(table: UInt32, index: UInt32) -> UInt8:
     return UInt8(dr.gather(UInt32, table, index))
 
 
-#: Evaluated uint8 tables of the point operations, by (operation, parameters): a repeated call with
-#: the same parameters launches one kernel (the look-up), as ``cv2.LUT`` with a prepared table.
+#: Evaluated uint8 tables of the point operations, by curve (:func:`_curve_key`): a repeated call
+#: with the same parameters launches one kernel (the look-up), as ``cv2.LUT`` with a prepared table.
 _BYTE_TABLES: dict[tuple, UInt32] = {}
 
 
+def _curve_key(function: Callable[[Float], Float]) -> tuple | None:
+    """What determines a curve: its code and the values it captures (Python scalars, and the
+    one-element opaque Dr.Jit scalars by value, floats by their bits), or None (not cached) when
+    it captures anything else."""
+    values = []
+    for cell in function.__closure__ or ():
+        value = cell.cell_contents
+        if dr.is_array_v(value) and dr.width(value) == 1:
+            value = (type(value).__name__, value.numpy()[0].item())
+        elif not isinstance(value, (bool, int, float, str)):
+            return None
+        values.append(value.hex() if isinstance(value, float) else
+                      (value[0], value[1].hex()) if isinstance(value, tuple) and isinstance(value[1], float)
+                      else value)
+    return function.__code__, tuple(values)
+
+
 def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
-               where: str, key: tuple = ()) -> TensorXf | TensorXu8:
+               where: str) -> TensorXf | TensorXu8:
     """Apply ``function`` per value; uint8 input through a 256-entry table of the same function,
-    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output.
-    ``key`` (the operation and its parameters) caches that table."""
+    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output (the
+    table is cached by :func:`_curve_key`)."""
     if is_uint8(image):
-        table = _BYTE_TABLES.get(key) if key else None
+        key = _curve_key(function)
+        table = _BYTE_TABLES.get(key) if key is not None else None
         if table is None:
             table = UInt32(to_uint8(function(dr.arange(Float, 256))))
             dr.eval(table)
-            if key:
+            if key is not None:
                 if len(_BYTE_TABLES) >= 64:
                     _BYTE_TABLES.clear()
                 _BYTE_TABLES[key] = table
@@ -262,7 +280,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
         # which a gamma beyond float32's range (1/gamma = 0 or inf) would otherwise produce.
         return top * dr.select((v == 0.0) | (v == 1.0), v, dr.power(v, exponent))
 
-    return _pointwise(image, curve, max_value, "gamma", ("gamma", g, a, max_value))
+    return _pointwise(image, curve, max_value, "gamma")
 
 
 @eager_if_shared
@@ -331,7 +349,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
         return dr.select(x < b1, k1 * x,
                          dr.select(x <= mid_top, k2 * (x - b1) + o1, k3 * (x - b2) + o2))
 
-    return _pointwise(image, curve, max_value, "contrast_stretch", ("contrast_stretch", r1, s1, r2, s2, max_value))
+    return _pointwise(image, curve, max_value, "contrast_stretch")
 
 
 @eager_if_shared
@@ -383,7 +401,7 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0) -> TensorXf |
         k = dr.minimum(dr.floor(dr.maximum(x, 0.0) * n / top), last)
         return k * step
 
-    return _pointwise(image, curve, max_value, "quantize", ("quantize", levels, max_value))
+    return _pointwise(image, curve, max_value, "quantize")
 
 
 def _table(table: Any, channels: int, eight_bit: bool = False) -> tuple[Float | UInt32, int]:

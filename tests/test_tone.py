@@ -580,3 +580,27 @@ def test_uint8_result_written_as_png(tmp_path):
         np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / f"{name}8.png")),
                                       np.asarray(Image.open(tmp_path / f"{name}f.png")))
         np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / f"{name}8.png")), a(result))
+
+
+def test_uint8_tables_are_cached_by_curve_not_reused_across_parameters():
+    """The byte tables are cached by the curve's code and captured values: another parameter (or
+    operation) gets its own table; the same parameters reuse it."""
+    from pointillist.imaging import tone
+
+    ramp = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    for first, second in ((lambda x: quantize(x, 3), lambda x: quantize(x, 4)),
+                          (lambda x: gamma(x, 2.2), lambda x: gamma(x, 2.2, a=1.5)),
+                          (lambda x: gamma(x, 2.2), lambda x: gamma(x, 2.2, max_value=200.0)),
+                          (lambda x: contrast_stretch(x, 50, 20, 200, 235),
+                           lambda x: contrast_stretch(x, 50, 20, 200, 236))):
+        a, b = a_copy(first(ramp)), a_copy(second(ramp))
+        assert not np.array_equal(a, b)
+        assert_8bit(second(ramp), second(ramp.astype(np.float32)))
+        assert_8bit(first(ramp), first(ramp.astype(np.float32)))
+    size = len(tone._BYTE_TABLES)
+    gamma(ramp, 2.2)
+    assert len(tone._BYTE_TABLES) == size  # reused
+
+
+def a_copy(x):
+    return np.asarray(x).copy()
