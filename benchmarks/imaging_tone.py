@@ -187,13 +187,13 @@ def kernel_profile(function, calls: int = 5) -> tuple[int, float, bool]:
 
 
 NOTES = [
-    "Issue 23 goals, this run (2026-12-01, loaded: other agents' test suites and benchmarks ran throughout, load "
-    "average 3-10 on 2 cores; no quiet run was possible, so the quiet-machine column the issue asks for is missing): "
-    "uint8 gamma 0.87x cv2.LUT by medians (0.47x by minima), met; uint8 lut 1.56x by medians but 0.46x by minima and "
-    "1.1 ms vs 2.4 ms at best (a 0.45 ms kernel; its median moves between 0.76x and 3.5x from run to run with the "
-    "load: three runs gave 3.55 / 0.76 / 1.56), met by the minima only; uint8 equalize_histogram 2.0x "
-    "cv2.equalizeHist (1.96x by minima), not met (bound below). Medians here are dominated by preemption of Dr.Jit's "
-    "2 worker threads; the minima and the kernel column are the machine's undisturbed cost.",
+    "Issue 23 goals, this run (2026-12-01, the lowest load of the day, load average 1.5-2.7 on 2 cores; other agents'"
+    " jobs still ran, so these are loaded-machine figures: no quiet run was possible, and the quiet-machine column "
+    "the issue asks for is missing): uint8 gamma 0.63x cv2.LUT by medians (0.33x by minima), met; uint8 lut 0.52x "
+    "(0.33x), met; uint8 equalize_histogram 2.96x cv2.equalizeHist by medians, 1.21x by minima, not met (bound "
+    "below). Earlier runs the same day at load 3-8 gave gamma 0.87x / 2.86x / 1.19x and lut 1.56x / 3.55x / 0.76x by "
+    "medians, 0.46-0.57x by minima: a 0.45-0.9 ms kernel's median is decided by preemption of Dr.Jit's 2 worker "
+    "threads; the minima and the kernel column are the undisturbed cost.",
     "",
     "Issue 23 (8-bit in, 8-bit out): uint8 input now gives uint8 output (lut, gamma, contrast_stretch, quantize, "
     "equalize_histogram), 1 byte written per pixel as OpenCV does. The earlier \"fair\" rows (uint8 in, float32 "
