@@ -13,6 +13,24 @@ Part A: a 512^3 int16 Shepp-Logan CT, 512x512 orthographic image.
 Part B (``--ct``): a clinical-size CT, 512 x 512 x 1800 int16 (about 0.94 GB), oblique 512x512
   MIP in a subprocess that builds the volume and renders it; its peak RSS comes from
   ``resource.getrusage`` (goal: < 10 s and peak < 3x the volume's size).
+Part C (``--axis``, issue 23 goal 1): axis-aligned ``--native-size --interpolation nearest`` MIP
+  of a 512^3 int16 CT-like volume with noise, for axial, coronal and sagittal, against numpy's
+  single-threaded ``max(axis)``, in interleaved rounds (ours, the previous column kernels
+  ``--before REV`` on the same integrator, numpy), medians and minima; every image checked equal to
+  numpy's; peak RSS of the process (volume + texture + renders) over the volume's bytes
+  (goal: ours at most 1.0x numpy per view, peak at most 2.5x). Runs in a subprocess.
+Part D (``--vtk``, issue 23 goal 2; needs the ``bench`` extra: ``pip install -e .[bench]``): oblique
+  MIP (azimuth 30, elevation 20, 512x512, step 0.5 voxel, trilinear, brick skipping) against VTK's CPU
+  ray caster ``vtkFixedPointVolumeRayCastMapper`` (maximum-intensity blend, 2 threads, sample distance
+  0.5, auto-adjust off, off-screen window, parallel projection framing the volume's box as ours
+  does), per image (interleaved rounds) and for the first image of a new volume (ours: texture +
+  brick grid + render; VTK: mapper set-up + first render), on the noisy CT-like volume and on the
+  phantom. Runs in a subprocess per volume.
+Part E (``--bounds``): what bounds parts C and D, in one process on the noisy volume: a Dr.Jit pass
+  reading the half storage as contiguous slice streams with one OR per word (the memory floor), the
+  same streams reduced with the half keys, the packet-gather column kernel, numpy ``max(axis)`` on 1
+  and on 2 threads (halves of a kept axis), interleaved rounds (kernel times from Dr.Jit's kernel
+  history); then the oblique render with and without brick skipping on the noisy volume and the phantom.
 JIT compile (first call) is reported apart from the steady state (median of repeats).
 """
 
@@ -161,6 +179,379 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
                       "texture": integrator.texture_info(), "image_max": float(image.max())}))
 
 
+def noisy_ct(n: int, seed: int = 0) -> np.ndarray:
+    """A CT-like int16 volume: the Shepp-Logan phantom plus Gaussian noise (sigma 20 HU) everywhere,
+    air and soft tissue included (built in slabs: no full-size float temporary)."""
+    from pointillist.imaging.volumes import shepp_logan_phantom
+
+    vol = shepp_logan_phantom(n)
+    rng = np.random.default_rng(seed)
+    for z in range(0, n, 32):
+        slab = vol[z:z + 32].astype(np.float32) + rng.normal(0.0, 20.0, vol[z:z + 32].shape).astype(np.float32)
+        vol[z:z + 32] = np.clip(np.rint(slab), -32768, 32767).astype(np.int16)
+    return vol
+
+
+def part_c_child(n: int, rounds: int, before: str | None) -> None:
+    """Axis-aligned MIP vs numpy, interleaved; prints one JSON line."""
+    import importlib.util
+
+    import pointillist
+
+    pointillist.setup()
+    import drjit as dr
+
+    from pointillist.imaging.volumes import Volume
+    from pointillist.mip import project_volume
+    from pointillist.plugins.integrators import _mip_accel
+
+    baseline = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # interpreter + Mitsuba + Dr.Jit
+    vol = noisy_ct(n)
+    volume = Volume(vol)
+    old = None
+    if before:
+        source = subprocess.run(["git", "-C", str(ROOT), "show", f"{before}:plugins/integrators/_mip_accel.py"],
+                                capture_output=True, text=True, check=True).stdout
+        spec = importlib.util.spec_from_loader("_mip_accel_before", loader=None)
+        old = importlib.util.module_from_spec(spec)
+        exec(compile(source, f"{before}:_mip_accel.py", "exec"), old.__dict__)
+    current = _mip_accel.reduce_half_keys
+    out = {"n": n, "rounds": rounds, "before": before, "views": {}}
+    integrators = {}
+    views = (("axial", 0), ("coronal", 1), ("sagittal", 2))
+    for name, axis in views:
+        t = time.perf_counter()
+        image, integrators[name] = project_volume(volume, view=name, native=True, interpolation="nearest",
+                                                  integrator=integrators.get("axial"))
+        first = time.perf_counter() - t
+        expected = vol.max(axis=axis).astype(np.float32)
+        exact = any(np.array_equal(image, e) for e in (expected, expected[::-1], expected[:, ::-1],
+                                                       expected[::-1, ::-1]))
+        out["views"][name] = {"first_s": first, "path": integrators[name].last_path, "equals_numpy": exact,
+                              "ours": [], "before": [], "numpy": [], "sitk": []}
+    # ours' peak: volume + texture + the first image of each view (the steady renders allocate the
+    # same), taken before SimpleITK is loaded and copies the volume into an ITK image
+    out["peak_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    try:  # the bench extra: SimpleITK's MaximumProjection (ITK image axes are x, y, z)
+        import SimpleITK as sitk
+
+        sitk.ProcessObject.SetGlobalDefaultNumberOfThreads(2)
+        itk_image = sitk.GetImageFromArray(vol)
+        out["sitk_version"] = sitk.Version.VersionString()
+    except ImportError:
+        sitk = None
+    for _ in range(rounds):
+        for name, axis in views:
+            row = out["views"][name]
+            t = time.perf_counter()
+            project_volume(volume, view=name, native=True, integrator=integrators[name])
+            row["ours"].append(time.perf_counter() - t)
+            if old is not None:
+                _mip_accel.reduce_half_keys = old.reduce_half_keys
+                try:
+                    t = time.perf_counter()
+                    project_volume(volume, view=name, native=True, integrator=integrators[name])
+                    row["before"].append(time.perf_counter() - t)
+                finally:
+                    _mip_accel.reduce_half_keys = current
+            t = time.perf_counter()
+            vol.max(axis=axis)
+            row["numpy"].append(time.perf_counter() - t)
+            if sitk is not None:
+                t = time.perf_counter()
+                sitk.MaximumProjection(itk_image, 2 - axis)
+                row["sitk"].append(time.perf_counter() - t)
+    dr.sync_thread()
+    out["peak_rss_with_peers"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    out["baseline_rss"] = baseline
+    out["volume_bytes"] = vol.nbytes
+    out["texture"] = integrators["axial"].texture_info()
+    import os
+
+    out["load_average"] = os.getloadavg()
+    print(json.dumps(out))
+
+
+def part_c(n: int, rounds: int, before: str | None) -> dict:
+    cmd = [sys.executable, __file__, "--axis-child", f"{n},{rounds},{before or ''}"]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+    if result.returncode != 0:
+        raise RuntimeError(result.stderr[-2000:])
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def print_part_c(c: dict) -> None:
+    n = c["n"]
+    print(f"\nAxis-aligned MIP, {n}^3 int16 CT-like volume with noise (sigma 20 HU), native size, nearest, "
+          f"{c['rounds']} interleaved rounds (load average at the end {c['load_average'][0]:.1f}); ms, median (min)")
+    sitk_on = bool(next(iter(c["views"].values()))["sitk"])
+    head = "| view | ours | " + ("before (" + c["before"][:10] + ") | " if c["before"] else "") + \
+        "numpy max(axis) 1 thread | " + ("SimpleITK MaximumProjection 2 threads | " if sitk_on else "") + \
+        "ours / numpy (medians) | (minima) | goal | met | first call (s) | equal to numpy |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
+    for name, row in c["views"].items():
+        med = {k: float(np.median(v)) * 1e3 for k, v in row.items() if isinstance(v, list) and v}
+        low = {k: float(np.min(v)) * 1e3 for k, v in row.items() if isinstance(v, list) and v}
+        ratio, ratio_min = med["ours"] / med["numpy"], low["ours"] / low["numpy"]
+        before = f"{med['before']:.1f} ({low['before']:.1f}) | " if c["before"] else ""
+        itk = f"{med['sitk']:.1f} ({low['sitk']:.1f}) | " if sitk_on else ""
+        met = "yes" if ratio <= 1.0 else "min only" if ratio_min <= 1.0 else "NO"
+        print(f"| {name} | {med['ours']:.1f} ({low['ours']:.1f}) | {before}{med['numpy']:.1f} ({low['numpy']:.1f}) | "
+              f"{itk}{ratio:.2f} | {ratio_min:.2f} | <= 1.0 | {met} | {row['first_s']:.2f} | {row['equals_numpy']} |")
+    grown = c["peak_rss"] - c["baseline_rss"]
+    print(f"\nPeak RSS (volume build + half texture + the three views): {c['peak_rss'] / 2**20:.0f} MiB = "
+          f"{c['peak_rss'] / c['volume_bytes']:.2f}x the volume ({c['volume_bytes'] / 2**20:.0f} MiB; goal <= 2.5x); "
+          f"above the process's RSS before the volume was built ({c['baseline_rss'] / 2**20:.0f} MiB: Python, "
+          f"Mitsuba, Dr.Jit): {grown / 2**20:.0f} MiB = {grown / c['volume_bytes']:.2f}x; texture {c['texture']}")
+
+
+def part_d_child(kind: str, n: int, rounds: int) -> None:
+    """Oblique MIP, ours vs VTK's fixed-point CPU ray caster; prints one JSON line."""
+    import vtk
+    from vtk.util import numpy_support
+
+    import pointillist
+
+    mi = pointillist.setup()
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
+    from pointillist.mip import project_volume, view_axes, view_frame
+
+    vol = noisy_ct(n) if kind == "noisy" else shepp_logan_phantom(n)
+    volume = Volume(vol)
+    size = (512, 512)
+    axes = view_axes(None, 30.0, 20.0)
+    view = dict(view=None, azimuth=30.0, elevation=20.0, size=size)
+    out = {"kind": kind, "n": n, "rounds": rounds}
+
+    t = time.perf_counter()
+    integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5})
+    integrator.set_volume(volume)
+    integrator.brick_bounds()
+    ours_image, _ = project_volume(volume, integrator=integrator, **view)
+    out["ours_first"] = time.perf_counter() - t
+
+    def vtk_setup():
+        nz, ny, nx = vol.shape
+        data = vtk.vtkImageData()
+        data.SetDimensions(nx, ny, nz)
+        data.SetSpacing(1.0, 1.0, 1.0)
+        data.SetOrigin(-(nx - 1) / 2, -(ny - 1) / 2, -(nz - 1) / 2)  # voxel centres as ours, box centred
+        data.GetPointData().SetScalars(numpy_support.numpy_to_vtk(vol.ravel(), deep=False,
+                                                                  array_type=vtk.VTK_SHORT))
+        mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+        mapper.SetInputData(data)
+        mapper.SetBlendModeToMaximumIntensity()
+        mapper.SetAutoAdjustSampleDistances(0)
+        mapper.SetSampleDistance(0.5)
+        mapper.SetNumberOfThreads(2)
+        lo, hi = float(vol.min()), float(vol.max())
+        opacity, colour = vtk.vtkPiecewiseFunction(), vtk.vtkColorTransferFunction()
+        opacity.AddPoint(lo, 1.0)
+        opacity.AddPoint(hi, 1.0)
+        colour.AddRGBPoint(lo, 0.0, 0.0, 0.0)
+        colour.AddRGBPoint(hi, 1.0, 1.0, 1.0)
+        prop = vtk.vtkVolumeProperty()
+        prop.SetScalarOpacity(opacity)
+        prop.SetColor(colour)
+        prop.SetInterpolationTypeToLinear()
+        actor = vtk.vtkVolume()
+        actor.SetMapper(mapper)
+        actor.SetProperty(prop)
+        renderer = vtk.vtkRenderer()
+        renderer.AddVolume(actor)
+        window = vtk.vtkRenderWindow()
+        window.SetOffScreenRendering(1)
+        window.AddRenderer(renderer)
+        window.SetSize(*size)
+        right, up, forward = axes
+        (_, _), half_w, half_h = view_frame(volume.extent, axes, size=size)
+        camera = renderer.GetActiveCamera()
+        camera.ParallelProjectionOn()
+        distance = 2.0 * float(np.linalg.norm(volume.extent))
+        camera.SetFocalPoint(0.0, 0.0, 0.0)
+        camera.SetPosition(*(-forward * distance))
+        camera.SetViewUp(*up)
+        camera.SetParallelScale(half_h)
+        camera.SetClippingRange(distance / 4, distance * 4)
+        return window, camera, mapper
+
+    t = time.perf_counter()
+    window, camera, mapper = vtk_setup()
+    window.Render()
+    out["vtk_first"] = time.perf_counter() - t
+    grab = vtk.vtkWindowToImageFilter()
+    grab.SetInput(window)
+    grab.Update()
+    shot = numpy_support.vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars())
+    out["vtk_image_mean"] = float(shot.mean())
+    out["ours"], out["vtk"] = [], []
+    for _ in range(rounds):
+        t = time.perf_counter()
+        project_volume(volume, integrator=integrator, **view)
+        out["ours"].append(time.perf_counter() - t)
+        camera.Modified()  # a new frame: the mapper casts every ray again
+        t = time.perf_counter()
+        window.Render()
+        out["vtk"].append(time.perf_counter() - t)
+    out["vtk_time_to_draw"] = mapper.GetTimeToDraw()
+    out["ours_image_max"] = float(np.max(ours_image))
+    import os
+
+    out["load_average"] = os.getloadavg()
+    out["vtk_version"] = vtk.vtkVersion.GetVTKVersion()
+    print(json.dumps(out))
+
+
+def part_d(n: int, rounds: int) -> list[dict]:
+    results = []
+    for kind in ("noisy", "phantom"):
+        cmd = [sys.executable, __file__, "--vtk-child", f"{kind},{n},{rounds}"]
+        result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+        if result.returncode != 0:
+            raise RuntimeError(result.stderr[-2000:])
+        results.append(json.loads(result.stdout.strip().splitlines()[-1]))
+    return results
+
+
+def print_part_d(rows: list[dict]) -> None:
+    print(f"\nOblique MIP (azimuth 30, elevation 20, 512x512, step 0.5, trilinear; ours with brick skipping) vs "
+          f"VTK {rows[0]['vtk_version']} vtkFixedPointVolumeRayCastMapper (MIP, 2 threads, sample distance 0.5), "
+          f"{rows[0]['rounds']} interleaved rounds; s, median (min)")
+    print("| volume | ours per image | VTK per image | ours / VTK (medians) | (minima) | goal | met "
+          "| ours first image | VTK first image | first: ours / VTK | goal | met |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        om, vm = float(np.median(r["ours"])), float(np.median(r["vtk"]))
+        ratio, ratio_min = om / vm, min(r["ours"]) / min(r["vtk"])
+        first = r["ours_first"] / r["vtk_first"]
+        met = "yes" if ratio <= 0.2 else "min only" if ratio_min <= 0.2 else "NO"
+        print(f"| {r['n']}^3 {r['kind']} | {om:.3f} ({min(r['ours']):.3f}) | {vm:.3f} ({min(r['vtk']):.3f}) "
+              f"| {ratio:.2f} | {ratio_min:.2f} | <= 0.2 | {met} | {r['ours_first']:.2f} | {r['vtk_first']:.2f} "
+              f"| {first:.2f} | <= 1.0 | {'yes' if first <= 1.0 else 'NO'} |")
+
+
+def part_e_child(n: int, rounds: int) -> None:
+    """Bounds of the axis-aligned and oblique paths; prints one JSON line."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import pointillist
+
+    mi = pointillist.setup()
+    import drjit as dr
+
+    from pointillist.imaging.volumes import Volume, shepp_logan_phantom
+    from pointillist.mip import project_volume
+    from pointillist.plugins.integrators import _mip_accel as accel
+
+    vol = noisy_ct(n)
+    flat = vol.astype(np.float16).reshape(-1).view(np.uint32)  # the texture's bytes (offset aside)
+    words = mi.UInt32(flat)
+    plane = flat.size // n
+    slices = [mi.UInt32(flat[z * plane:(z + 1) * plane]) for z in range(n)]  # zero-copy views
+    dr.eval(words)
+
+    def streams(combine, group=64):
+        partial = []
+        for g in range(0, n, group):
+            acc = None
+            for z in range(g, min(n, g + group)):
+                acc = combine(acc, slices[z])
+            dr.eval(acc)
+            partial.append(acc)
+        acc = None
+        for p in partial:
+            acc = combine(acc, p)
+        return acc
+
+    def or_pass(acc, w):
+        return w if acc is None else acc | w
+
+    def key_pass(acc, w):
+        lo, hi = accel._half_key(w)
+        packed = lo | (hi << 16)
+        if acc is None:
+            return packed
+        return dr.maximum(acc & 0xFFFF, lo) | (dr.maximum(acc >> 16, hi) << 16)
+
+    pool = ThreadPoolExecutor(2)
+
+    def numpy_two(axis):
+        keep = 1 if axis != 1 else 0
+        cut = n // 2
+
+        def part(lo_hi):
+            index = [slice(None)] * 3
+            index[keep] = slice(*lo_hi)
+            return vol[tuple(index)].max(axis=axis)
+
+        return list(pool.map(part, ((0, cut), (cut, n))))
+
+    cases = {"Dr.Jit OR pass over slice streams (floor)": lambda: streams(or_pass),
+             "Dr.Jit half-key max over slice streams": lambda: streams(key_pass),
+             "reduce_half_keys, axial (as shipped)": lambda: accel.reduce_half_keys(words, vol.shape, 2, "mip")}
+    numpy_cases = {f"numpy max(axis={a}), {t} thread{'s' if t > 1 else ''}": (
+        (lambda a=a: vol.max(axis=a)) if t == 1 else (lambda a=a: numpy_two(a))) for a in (0, 1, 2) for t in (1, 2)}
+    times = {name: [] for name in (*cases, *numpy_cases)}
+    kernels = {name: [] for name in cases}
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    for round_ in range(rounds + 1):
+        for name, call in cases.items():
+            dr.kernel_history()
+            t = time.perf_counter()
+            dr.eval(call())
+            dr.sync_thread()
+            if round_:
+                times[name].append(time.perf_counter() - t)
+                kernels[name].append(sum(e["execution_time"] for e in dr.kernel_history()
+                                         if e["type"] == dr.KernelType.JIT) / 1e3)
+        for name, call in numpy_cases.items():
+            t = time.perf_counter()
+            call()
+            if round_:
+                times[name].append(time.perf_counter() - t)
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    out = {"n": n, "rounds": rounds, "times": times, "kernels": kernels}
+    slices.clear()  # the zero-copy views: drop them before the renders
+    view = dict(view=None, azimuth=30.0, elevation=20.0, size=(512, 512))
+    for kind in ("noisy", "phantom"):
+        volume = Volume(vol if kind == "noisy" else shepp_logan_phantom(n))
+        for skip in (True, False):
+            integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5, "skip_bricks": skip})
+            integrator.set_volume(volume)
+            if skip:
+                upper = np.asarray(integrator.brick_bounds()[0])
+                out[f"{kind}_brick_max_p90"] = float(np.quantile(upper[np.isfinite(upper)], 0.9))
+            project_volume(volume, integrator=integrator, **view)
+            runs = []
+            for _ in range(2):
+                t = time.perf_counter()
+                project_volume(volume, integrator=integrator, **view)
+                runs.append(time.perf_counter() - t)
+            out[f"{kind}_{'bricks' if skip else 'march'}"] = min(runs)
+    import os
+
+    out["load_average"] = os.getloadavg()
+    print(json.dumps(out))
+
+
+def print_part_e(e: dict) -> None:
+    print(f"\nBounds, {e['n']}^3 noisy int16, {e['rounds']} interleaved rounds (load average at the end "
+          f"{e['load_average'][0]:.1f}); ms, median (min); Dr.Jit rows also give their kernel time")
+    print("| pass | wall | kernels |")
+    print("|---|---|---|")
+    for name, t in e["times"].items():
+        kern = e["kernels"].get(name)
+        k = f"{np.median(kern) * 1e3:.1f} ({np.min(kern) * 1e3:.1f})" if kern else "-"
+        print(f"| {name} | {np.median(t) * 1e3:.1f} ({np.min(t) * 1e3:.1f}) | {k} |")
+    print("\n| oblique 30/20, 512x512, trilinear, step 0.5 (min of 2, s) | brick skipping | plain march | gain "
+          "| 90th percentile of brick maxima |")
+    print("|---|---|---|---|---|")
+    for kind in ("noisy", "phantom"):
+        b, m = e[f"{kind}_bricks"], e[f"{kind}_march"]
+        print(f"| {kind} | {b:.2f} | {m:.2f} | {m / b:.1f}x | {e[f'{kind}_brick_max_p90']:.0f} |")
+
+
 def part_b(shape) -> dict:
     cmd = [sys.executable, __file__, "--child", ",".join(map(str, shape))]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
@@ -174,10 +565,49 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--ct", action="store_true", help="also run part B (512x512x1800 CT)")
+    parser.add_argument("--axis", action="store_true", help="only part C (axis-aligned views vs numpy)")
+    parser.add_argument("--rounds", type=int, default=7, help="part C: interleaved rounds")
+    parser.add_argument("--before", help="part C: also time the column kernels of git revision REV")
     parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--axis-child", help=argparse.SUPPRESS)
+    parser.add_argument("--vtk", action="store_true", help="only part D (oblique MIP vs VTK's CPU ray caster)")
+    parser.add_argument("--vtk-child", help=argparse.SUPPRESS)
+    parser.add_argument("--bounds", action="store_true", help="only part E (what bounds parts C and D)")
+    parser.add_argument("--bounds-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         part_b_child(tuple(int(s) for s in args.child.split(",")))
+        return
+    if args.axis_child:
+        n, rounds, before = args.axis_child.split(",")
+        part_c_child(int(n), int(rounds), before or None)
+        return
+    if args.vtk_child:
+        kind, n, rounds = args.vtk_child.split(",")
+        part_d_child(kind, int(n), int(rounds))
+        return
+    if args.bounds_child:
+        n, rounds = args.bounds_child.split(",")
+        part_e_child(int(n), int(rounds))
+        return
+    if args.bounds:
+        cmd = [sys.executable, __file__, "--bounds-child", f"{args.size},{args.rounds}"]
+        result = subprocess.run(cmd, capture_output=True, text=True, timeout=1500)
+        if result.returncode != 0:
+            raise RuntimeError(result.stderr[-2000:])
+        e = json.loads(result.stdout.strip().splitlines()[-1])
+        print(json.dumps(e))
+        print_part_e(e)
+        return
+    if args.vtk:
+        d = part_d(args.size, args.rounds)
+        print(json.dumps(d))
+        print_part_d(d)
+        return
+    if args.axis:
+        c = part_c(args.size, args.rounds, args.before)
+        print(json.dumps(c))
+        print_part_c(c)
         return
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
     a = part_a(args.size, args.repeats)

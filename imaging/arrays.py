@@ -15,10 +15,11 @@ from typing import Any, Callable, TypeVar
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import TensorXf
+from drjit.llvm import Float, TensorXf, TensorXu8, UInt8
 
-__all__ = ["as_tensor", "to_numpy", "TensorXf", "eager_if_shared", "check_shape", "is_uint8", "opaque_scalar",
-           "divmod_u32", "NonFiniteWarning", "replace_non_finite", "warn_non_finite"]
+__all__ = ["as_tensor", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared", "check_shape", "is_uint8",
+           "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning", "replace_non_finite",
+           "warn_non_finite"]
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -68,8 +69,9 @@ def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | No
     ----------
     image : array_like or Dr.Jit tensor
         The image. numpy arrays are shared without a copy when already
-        C-contiguous float32; other dtypes are converted to float32
-        (integers keep their values: uint8 ``200`` becomes ``200.0``).
+        C-contiguous float32; other dtypes (and Dr.Jit tensors of other types,
+        such as the ``TensorXu8`` the 8-bit operations return) are converted to
+        float32 (integers keep their values: uint8 ``200`` becomes ``200.0``).
     name : str
         The argument's name, used in error messages.
     channels : tuple of int, optional
@@ -165,16 +167,54 @@ def eager_if_shared(function: _F) -> _F:
 
 
 def is_uint8(image: Any) -> bool:
-    """True for a numpy ``uint8`` array (read by the fast paths as packed bytes, without a float32 copy).
+    """True for 8-bit images: a numpy ``uint8`` array or a ``drjit.llvm.TensorXu8`` (read by the fast
+    paths as bytes, without a float32 copy; the tone and dither operations return uint8 for them).
 
     Examples
     --------
     >>> import numpy as np
-    >>> from pointillist.imaging.arrays import is_uint8
-    >>> is_uint8(np.zeros((2, 2), np.uint8)), is_uint8(np.zeros((2, 2)))
-    (True, False)
+    >>> from pointillist.imaging.arrays import TensorXu8, is_uint8
+    >>> is_uint8(np.zeros((2, 2), np.uint8)), is_uint8(TensorXu8(np.zeros((2, 2), np.uint8))), is_uint8(np.zeros(2))
+    (True, True, False)
     """
-    return isinstance(image, np.ndarray) and image.dtype == np.uint8
+    return (isinstance(image, np.ndarray) and image.dtype == np.uint8) or isinstance(image, TensorXu8)
+
+
+def uint8_array(image: Any, name: str = "image") -> np.ndarray:
+    """An 8-bit image (:func:`is_uint8`) as a C-contiguous numpy uint8 array of shape (H, W) or (H, W, C).
+
+    A ``TensorXu8`` is evaluated and shared without a copy (the LLVM backend's memory is host
+    memory); a numpy array is shared when already C-contiguous. The shape is checked as by
+    :func:`check_shape`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pointillist.imaging.arrays import TensorXu8, uint8_array
+    >>> uint8_array(TensorXu8(np.array([[1, 2]], np.uint8))).tolist()
+    [[1, 2]]
+    """
+    array = np.ascontiguousarray(np.asarray(image))
+    check_shape(array.shape, name)
+    return array
+
+
+def to_uint8(values: Any) -> Any:
+    """Float32 values as ``UInt8`` the way the 8-bit writers (:func:`pointillist.imaging.io.to_8bit`
+    with ``max_value=255``, ``srgb=False``) round them: clipped to 0..255, rounded half to even.
+
+    The uint8 results of the tone and dither operations are exactly this rounding of their float32
+    results. NaN becomes 0 (as in the writers).
+
+    Examples
+    --------
+    >>> from drjit.llvm import Float
+    >>> from pointillist.imaging.arrays import to_uint8
+    >>> to_uint8(Float(-3.0, 0.5, 1.5, 127.5, 254.6, 300.0)).numpy().tolist()
+    [0, 0, 2, 128, 255, 255]
+    """
+    clean = dr.select(dr.isnan(values), 0.0, values)
+    return UInt8(dr.clip(dr.round(clean), opaque_scalar(Float, 0.0), opaque_scalar(Float, 255.0)))
 
 
 _OPAQUE: dict[tuple[type, Any], Any] = {}

@@ -20,9 +20,10 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float, UInt32
+from drjit.llvm import Bool, Float, UInt8, UInt32
 
-from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar,
+                                        to_uint8, uint8_array)
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
                                                select_max, select_min, window_apply, window_result)
 from pointillist.imaging.rank import radix_median
@@ -410,8 +411,11 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
 
 
 @eager_if_shared
-def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> TensorXf:
+def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Threshold: values below ``level`` become 0, values at or above it ``max_value``.
+
+    8-bit in, 8-bit out (as ``cv2.threshold``): uint8 input (numpy or ``TensorXu8``) gives a
+    ``TensorXu8`` with ``max_value`` rounded half to even and clipped to 0..255.
 
     Parameters
     ----------
@@ -424,7 +428,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
         Same shape as ``image``, values in {0, max_value}. NaN compares false and becomes 0.
 
     Examples
@@ -433,11 +437,18 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     >>> from pointillist.imaging.filters import threshold
     >>> np.asarray(threshold(np.array([[0, 127], [128, 255]]))).tolist()
     [[0.0, 0.0], [255.0, 255.0]]
+    >>> np.asarray(threshold(np.array([[0, 127], [128, 255]], np.uint8))).tolist()
+    [[0, 0], [255, 255]]
     """
     if not isinstance(level, (int, float, np.integer, np.floating)) or isinstance(level, bool) or not np.isfinite(level):
         raise ValueError(f"level: expected a finite number, got {level!r}")
     if not isinstance(max_value, (int, float, np.integer, np.floating)) or not np.isfinite(max_value):
         raise ValueError(f"max_value: expected a finite number, got {max_value!r}")
+    if is_uint8(image):  # the bytes widened in the kernel, the result written as bytes
+        array = uint8_array(image)
+        on = to_uint8(Float(float(max_value)))[0]
+        up = Float(UInt8(array.reshape(-1))) >= opaque_scalar(Float, float(level))
+        return TensorXu8(dr.select(up, opaque_scalar(UInt8, on), opaque_scalar(UInt8, 0)), array.shape)
     tensor = as_tensor(image)
     values = dr.select(tensor.array >= dr.opaque(Float, float(level)), dr.opaque(Float, float(max_value)), 0.0)
     return TensorXf(values, tensor.shape)

@@ -6,9 +6,15 @@ Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
 The display-domain operations work on intensities 0..``max_value`` (255 by
 default); :func:`tonemap` turns linear HDR renders into such intensities.
 
-8-bit input (a numpy ``uint8`` array) is served by a 256-entry look-up table
-computed with the same formula, read four pixels per 32-bit word without
-converting the image to float first.
+8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8``
+array or a ``drjit.llvm.TensorXu8``), :func:`gamma`, :func:`contrast_stretch`,
+:func:`quantize`, :func:`lut` and :func:`equalize_histogram` return a
+``drjit.llvm.TensorXu8`` (``np.asarray`` gives uint8) holding the float32 result
+rounded as the 8-bit writers round it (clipped to 0..255, half to even:
+:func:`pointillist.imaging.arrays.to_uint8`); float input keeps float32 output. Pass
+``image.astype(np.float32)`` for unrounded float output. 8-bit input is served by a
+256-entry table computed with the same formula, read without converting the image
+to float first.
 
 Notes
 -----
@@ -16,17 +22,20 @@ Non-finite input (the policy of every function here): NaN becomes 0, +inf
 becomes white (``max_value``; 255 after :func:`tonemap`), -inf becomes 0, and a
 :class:`NonFiniteWarning` reports how many values were replaced.
 
-======================  ==============================  ==========================
-Function                Domain                          Range
-======================  ==============================  ==========================
-``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)
-``contrast_stretch``    clipped to [0, max_value]       [0, max_value]
-``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]
-``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]
-``lut``                 rounded, clipped to 0..255       the table's values
-``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]
+======================  ==============================  ==================================  ============
+Function                Domain                          Range                               uint8 input
+======================  ==============================  ==================================  ============
+``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)              uint8 out
+``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                      uint8 out
+``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]  uint8 out
+``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]  uint8 out
+``lut``                 rounded, clipped to 0..255       the table's values                  uint8 out
+``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]             float32 out
                         at 1e15 after exposure)
-======================  ==============================  ==========================
+======================  ==============================  ==================================  ============
+
+"uint8 out": the float32 result rounded half to even and clipped to 0..255, as
+:func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
 """
 
 from __future__ import annotations
@@ -39,8 +48,9 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
-from pointillist.imaging.arrays import (NonFiniteWarning, TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8,
-                                        opaque_scalar, replace_non_finite, warn_non_finite)
+from pointillist.imaging.arrays import (NonFiniteWarning, TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared,
+                                        is_uint8, opaque_scalar, replace_non_finite, to_uint8, uint8_array,
+                                        warn_non_finite)
 from pointillist.imaging.colour import (REC709_LUMINANCE_WEIGHTS, hsv_from_rgb_values, rgb_from_hsv_values,
                                         srgb_encode_values)
 
@@ -117,7 +127,7 @@ def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
 
 # --------------------------------------------------------------------------- shared machinery
 
-def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
+def _u8_indices(image: Any, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
     """Per-pixel UInt32 values of a uint8 image, read in place (no float conversion, no gather).
 
     The bytes are shared with Dr.Jit as a ``UInt8`` array (zero copy for C-contiguous input)
@@ -126,8 +136,8 @@ def _u8_indices(image: np.ndarray, name: str = "image") -> tuple[UInt32, tuple[i
     little-endian UInt32 words (four pixels each, for the pair histogram), or None when the
     image cannot be viewed as whole aligned words.
     """
-    check_shape(image.shape, name, None, False)
-    flat = np.ascontiguousarray(image).reshape(-1)
+    image = uint8_array(image, name)
+    flat = image.reshape(-1)
     return UInt32(UInt8(flat)), tuple(image.shape), _words(flat)
 
 
@@ -143,7 +153,7 @@ def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
     return replace_non_finite(values, white)
 
 
-def _done(result: TensorXf) -> TensorXf:
+def _done(result: TensorXf | TensorXu8) -> TensorXf | TensorXu8:
     """Evaluate ``result`` and wait for it: uint8 input is read in place, so the kernel must have
     finished before the caller may change or free the array."""
     dr.eval(result)
@@ -151,17 +161,56 @@ def _done(result: TensorXf) -> TensorXf:
     return result
 
 
-def _finish(result: TensorXf, count: UInt32, where: str) -> TensorXf:
+def _finish(result: TensorXf | TensorXu8, count: UInt32, where: str) -> TensorXf | TensorXu8:
     """Evaluate ``result`` together with the non-finite counter and warn with the count."""
     return warn_non_finite(result, count, where, stacklevel=4)
 
 
-def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float, where: str) -> TensorXf:
-    """Apply ``function`` per value; uint8 input through a 256-entry table of the same function."""
+def _look_up_bytes(table: UInt32, index: UInt32) -> UInt8:
+    """``table[index]`` for a table of byte values held as UInt32: gathered as 32-bit words, then
+    narrowed (LLVM scalarises a gather of bytes: about 4x slower than the 32-bit hardware gather)."""
+    return UInt8(dr.gather(UInt32, table, index))
+
+
+#: Evaluated uint8 tables of the point operations, by curve (:func:`_curve_key`): a repeated call
+#: with the same parameters launches one kernel (the look-up), as ``cv2.LUT`` with a prepared table.
+_BYTE_TABLES: dict[tuple, UInt32] = {}
+
+
+def _curve_key(function: Callable[[Float], Float]) -> tuple | None:
+    """What determines a curve: its code and the values it captures (Python scalars, and the
+    one-element opaque Dr.Jit scalars by value, floats by their bits), or None (not cached) when
+    it captures anything else."""
+    values = []
+    for cell in function.__closure__ or ():
+        value = cell.cell_contents
+        if dr.is_array_v(value) and dr.width(value) == 1:
+            value = (type(value).__name__, value.numpy()[0].item())
+        elif not isinstance(value, (bool, int, float, str)):
+            return None
+        values.append(value.hex() if isinstance(value, float) else
+                      (value[0], value[1].hex()) if isinstance(value, tuple) and isinstance(value[1], float)
+                      else value)
+    return function.__code__, tuple(values)
+
+
+def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
+               where: str) -> TensorXf | TensorXu8:
+    """Apply ``function`` per value; uint8 input through a 256-entry table of the same function,
+    rounded to uint8 (:func:`~pointillist.imaging.arrays.to_uint8`), giving uint8 output (the
+    table is cached by :func:`_curve_key`)."""
     if is_uint8(image):
-        table = function(dr.arange(Float, 256))
+        key = _curve_key(function)
+        table = _BYTE_TABLES.get(key) if key is not None else None
+        if table is None:
+            table = UInt32(to_uint8(function(dr.arange(Float, 256))))
+            dr.eval(table)
+            if key is not None:
+                if len(_BYTE_TABLES) >= 64:
+                    _BYTE_TABLES.clear()
+                _BYTE_TABLES[key] = table
         values, shape, _ = _u8_indices(image)
-        return _done(TensorXf(dr.gather(Float, table, values), shape))
+        return _done(TensorXu8(_look_up_bytes(table, values), shape))
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
     return _finish(TensorXf(function(clean), tensor.shape), count, where)
@@ -170,7 +219,7 @@ def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
 # --------------------------------------------------------------------------- operations
 
 @eager_if_shared
-def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf:
+def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Gamma correction V = (I / a)^(1/gamma) on intensities normalised to 0..1.
 
     Parameters
@@ -186,8 +235,8 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        ``max_value * (I / max_value / a)^(1/gamma)``, same shape.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        ``max_value * (I / max_value / a)^(1/gamma)``, same shape; uint8 (rounded) for uint8 input.
 
     Raises
     ------
@@ -226,7 +275,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
 
 @eager_if_shared
 def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
-                     max_value: float = 255.0) -> TensorXf:
+                     max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Piecewise-linear contrast stretching through (0, 0), (r1, s1), (r2, s2), (max, max).
 
     out = s1/r1 in for in < r1; (s2 - s1)/(r2 - r1) (in - r1) + s1 for r1 <= in <= r2;
@@ -245,8 +294,8 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape, values in 0..max_value.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape, values in 0..max_value; uint8 (rounded) for uint8 input.
 
     Raises
     ------
@@ -294,7 +343,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
 
 @eager_if_shared
-def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "nearest") -> TensorXf:
+def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "nearest") -> TensorXf | TensorXu8:
     """Quantise to ``levels`` evenly spaced grey levels spanning 0..max_value.
 
     The levels are ``k * max_value / (levels - 1)``, k = 0..levels-1. Two ways to pick one:
@@ -318,9 +367,10 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
         Same shape, at most ``levels`` distinct values, always including 0 and
-        max_value when the input reaches them.
+        max_value when the input reaches them; uint8 (rounded: levels=3 gives 0, 128, 255)
+        for uint8 input.
 
     Raises
     ------
@@ -365,7 +415,9 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
 QUANTIZE_MODES = ("nearest", "bins")
 
 
-def _table(table: Any, channels: int) -> tuple[Float, int]:
+def _table(table: Any, channels: int, eight_bit: bool = False) -> tuple[Float | UInt32, int]:
+    """The checked table as float32 values, or with ``eight_bit`` as their uint8 rounding held in
+    UInt32 (numpy's rint of the float32 values = :func:`~pointillist.imaging.arrays.to_uint8`, no kernel)."""
     try:
         values = np.asarray(table, dtype=np.float64)
     except (TypeError, ValueError) as error:
@@ -378,11 +430,14 @@ def _table(table: Any, channels: int) -> tuple[Float, int]:
     if not np.all(np.isfinite(values)):
         raise ValueError("table: expected finite values")
     width = 1 if values.ndim == 1 else channels
-    return Float(np.ascontiguousarray(values, dtype=np.float32).reshape(-1)), width
+    values = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+    if eight_bit:
+        return UInt32(np.rint(np.clip(values, 0, 255)).astype(np.uint32)), width
+    return Float(values), width
 
 
 @eager_if_shared
-def lut(image: Any, table: Any) -> TensorXf:
+def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
     """Apply a 256-entry look-up table to 8-bit data: out = table[I].
 
     Parameters
@@ -396,8 +451,9 @@ def lut(image: Any, table: Any) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape as ``image``, float32 table values.
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape as ``image``: float32 table values, or for uint8 input (as ``cv2.LUT`` with a
+        uint8 table) uint8, the table values rounded half to even and clipped to 0..255.
 
     Raises
     ------
@@ -413,14 +469,16 @@ def lut(image: Any, table: Any) -> TensorXf:
     >>> import numpy as np
     >>> from pointillist.imaging.tone import lut
     >>> np.asarray(lut(np.array([[0, 1, 255]], np.uint8), 255 - np.arange(256))).tolist()
+    [[255, 254, 0]]
+    >>> np.asarray(lut(np.array([[0.0, 1.0, 255.0]]), 255 - np.arange(256))).tolist()
     [[255.0, 254.0, 0.0]]
     """
     if is_uint8(image):
         values, shape, _ = _u8_indices(image)
         channels = shape[2] if len(shape) == 3 else 1
-        table, width = _table(table, channels)
+        table, width = _table(table, channels, eight_bit=True)
         index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
-        return _done(TensorXf(dr.gather(Float, table, index), shape))
+        return _done(TensorXu8(_look_up_bytes(table, index), shape))
     tensor = as_tensor(image)
     channels = tensor.shape[2] if tensor.ndim == 3 else 1
     table, width = _table(table, channels)
@@ -549,7 +607,7 @@ def _bins(image: Any, levels: int, max_value: float):
 
 
 @eager_if_shared
-def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf:
+def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf | TensorXu8:
     """Histogram equalisation (SPEC): F(i) = max(0, round(L t(i) / (h w)) - 1).
 
     t(i) is the cumulative histogram of grey level i, L = ``levels``. Colour
@@ -568,8 +626,9 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
 
     Returns
     -------
-    drjit.llvm.TensorXf
-        Same shape; level F(i) is output as F(i) max_value / (L - 1).
+    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+        Same shape; level F(i) is output as F(i) max_value / (L - 1); uint8 (rounded) for uint8
+        input, as ``cv2.equalizeHist``.
 
     Raises
     ------
@@ -595,14 +654,17 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     >>> import numpy as np
     >>> from pointillist.imaging.tone import equalize_histogram
     >>> np.asarray(equalize_histogram(np.array([[0, 0, 0, 255]], np.uint8))).tolist()
-    [[191.0, 191.0, 191.0, 255.0]]
+    [[191, 191, 191, 255]]
     """
     levels = _levels(levels, high=65536)
     max_value = _positive(max_value, "max_value")
-    if is_uint8(image) and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
-        flat = np.ascontiguousarray(image).reshape(-1)
-        return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value)
-    if not is_uint8(image):
+    eight_bit = is_uint8(image)
+    if eight_bit:
+        image = uint8_array(image)
+    if eight_bit and image.ndim == 3 and image.shape[2] == 3:  # bytes widened inside the HSV pass
+        flat = image.reshape(-1)
+        return _equalize_colour(TensorXf(Float(UInt8(flat)), image.shape), levels, max_value, eight_bit=True)
+    if not eight_bit:
         tensor = as_tensor(image, channels=(1, 3))
         if tensor.ndim == 3 and tensor.shape[2] == 3:
             return _equalize_colour(tensor, levels, max_value)
@@ -611,13 +673,16 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     bins, words, tail, shape, count = _bins(image, levels, max_value)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
+    if eight_bit:
+        return _done(TensorXu8(_look_up_bytes(UInt32(to_uint8(table)), UInt32(bins)), shape))
     result = TensorXf(dr.gather(Float, table, UInt32(bins)), shape)
     if count is None:
         return _done(result)
     return _finish(result, count, "equalize_histogram")
 
 
-def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorXf:
+def _equalize_colour(tensor: TensorXf, levels: int, max_value: float,
+                     eight_bit: bool = False) -> TensorXf | TensorXu8:
     rgb = dr.unravel(Array3f, tensor.array)
     bad = ~(dr.isfinite(rgb.x) & dr.isfinite(rgb.y) & dr.isfinite(rgb.z))
     count = dr.zeros(UInt32, 1)
@@ -634,7 +699,10 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float) -> TensorX
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
     r, g, b = rgb_from_hsv_values(h, s, dr.gather(Float, table, UInt32(bins)))
-    return _finish(TensorXf(dr.ravel(Array3f(r, g, b)), tensor.shape), count, "equalize_histogram")
+    values = dr.ravel(Array3f(r, g, b))
+    if eight_bit:  # rounded in the same pass
+        return _finish(TensorXu8(to_uint8(values), tensor.shape), count, "equalize_histogram")
+    return _finish(TensorXf(values, tensor.shape), count, "equalize_histogram")
 
 
 def _log1p(x: Float) -> Float:

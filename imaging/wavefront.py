@@ -32,7 +32,7 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Float64, Int32
+from drjit.llvm import Float, Float64, Int32, UInt8
 
 __all__ = ["clip_intensity", "packet_width", "wavefront_schedule", "verified_lanes", "diffuse_wavefront"]
 
@@ -152,13 +152,14 @@ def verified_lanes() -> int:
 def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
                   kernel: tuple[tuple[int, int, float], ...], serpentine: bool,
                   tables: tuple[np.ndarray, np.ndarray, np.ndarray], carry: bool = False,
-                  lanes: int | None = None, clip: bool = False) -> Float:
+                  lanes: int | None = None, clip: bool = False, eight_bit: bool = False) -> Float | UInt8:
     """Error diffusion of the flat (H, W, C) ``values``; returns the output levels.
 
     ``values``: evaluated float32 (already clipped, or raw with ``clip``: NaN -> 0 and the clip to
     0..255 then happen on each value as the loop reads it, saving a pass over the image) or
     uint8 (0..255, read as bytes). ``lanes``: rows processed together in one SIMD packet (default:
-    :func:`verified_lanes`).
+    :func:`verified_lanes`). ``eight_bit``: write the output levels as ``UInt8`` (the display
+    values rounded half to even), not float32.
     """
     plan = wavefront_schedule(kernel, serpentine, width, channels, verified_lanes() if lanes is None else lanes)
     rows, right, left, order, own_w = plan["rows"], plan["right"], plan["left"], plan["order"], plan["own"]
@@ -177,7 +178,10 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
     # that every value is read at a later step than the one that wrote it.
     memory = np.zeros(channels * slots * stride, dtype=np.float64)
     errors_in, errors_out = Float64(memory), Float64(memory)
-    out = dr.empty(Float, height * width * channels)
+    shown_type = UInt8 if eight_bit else Float
+    if eight_bit:
+        display = np.rint(display)
+    out = dr.empty(shown_type, height * width * channels)
 
     lane = dr.arange(Int32, lanes * channels)
     index = lane % lanes
@@ -193,11 +197,12 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
     if levels == 2:
         level_k = dr.opaque(Float64, float(thresholds[0]))
         work0, work1 = dr.opaque(Float64, float(work[0])), dr.opaque(Float64, float(work[1]))
-        disp0, disp1 = dr.opaque(Float, float(display[0])), dr.opaque(Float, float(display[1])),
+        value = int if eight_bit else float
+        disp0, disp1 = dr.opaque(shown_type, value(display[0])), dr.opaque(shown_type, value(display[1]))
     else:
         threshold_table = Float64(thresholds)
         work_table = Float64(work)
-        display_table = Float(display.astype(np.float32))
+        display_table = shown_type(display.astype(np.uint8 if eight_bit else np.float32))
     search = [1 << b for b in reversed(range(max(1, (levels - 1).bit_length())))]
 
     step = dr.zeros(Int32, lanes * channels)
@@ -242,7 +247,7 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
                 bound = dr.gather(Float64, threshold_table, candidate - 1, fits & valid)
                 k = dr.select(fits & (bound <= v), candidate, k)
             q = dr.gather(Float64, work_table, k, valid)
-            shown = dr.gather(Float, display_table, k, valid)
+            shown = dr.gather(shown_type, display_table, k, valid)
         e = dr.select(valid, v - q, 0.0)
         if rows:
             dr.scatter(errors_out, e, buffer_base + slot * B + px, valid)

@@ -633,3 +633,48 @@ def test_divmod_helper_is_exact():
     p = np.minimum(image.astype(np.int64) * 10 // 255, 9)
     expected = np.where(p >= np.tile(template, (4, 5))[:11, :13], 255.0, 0.0)
     assert np.array_equal(np.asarray(ordered(image, template)), expected)
+
+
+# ----------------------------------------------------------------------------------------------
+# 8-bit in, 8-bit out
+
+
+@pytest.mark.parametrize("method", sorted(dither.DITHER_METHODS))
+@pytest.mark.parametrize("shape", [(13, 17), (9, 11, 3)])
+def test_every_method_uint8_in_uint8_out(method, shape):
+    """uint8 (numpy or TensorXu8) in: uint8 out, equal to the float32 result of the same values
+    rounded as the 8-bit writers round it; float in: float32 out."""
+    from drjit.llvm import TensorXu8
+
+    from pointillist.imaging.io import to_8bit
+
+    rng = np.random.default_rng(sum(shape) + len(method))
+    image = rng.integers(0, 256, shape).astype(np.uint8)
+    options = dither.dither_options(method)
+    variants = [{}] + ([{"levels": 3}, {"levels": 5}] if "levels" in options else []) \
+        + ([{"linear": True}] if "linear" in options else [])
+    for kwargs in variants:
+        as_float = np.asarray(dither.dither(image.astype(np.float32), method, **kwargs))
+        assert as_float.dtype == np.float32
+        for source in (image, TensorXu8(image)):
+            result = dither.dither(source, method, **kwargs)
+            assert isinstance(result, TensorXu8), (method, kwargs)
+            got = np.asarray(result)
+            assert got.dtype == np.uint8
+            np.testing.assert_array_equal(got, to_8bit(as_float, srgb=False, max_value=255.0), err_msg=method)
+    if method == "floyd_steinberg":  # levels=3: 127.5 is a tie, written as 128 (half to even)
+        assert set(np.unique(np.asarray(dither.dither(image, method, levels=3)))) <= {0, 128, 255}
+
+
+def test_uint8_dither_result_written_as_png_and_reported(tmp_path):
+    """A uint8 dither result flows into the PNG writer and the dither error (as_tensor widens it)."""
+    from PIL import Image
+
+    from pointillist.imaging.io import write_png
+
+    image = np.random.default_rng(5).integers(0, 256, (24, 32)).astype(np.uint8)
+    result = floyd_steinberg(image)
+    write_png(tmp_path / "fs.png", result, srgb=False, max_value=255.0)
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "fs.png")), np.asarray(result))
+    expected = dither_error(image.astype(np.float32), np.asarray(floyd_steinberg(image.astype(np.float32))))
+    assert dither_error(image, result) == expected

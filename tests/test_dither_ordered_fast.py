@@ -16,6 +16,7 @@ from drjit.llvm import UInt32
 
 from pointillist.imaging.arrays import as_tensor, divmod_u32
 from pointillist.imaging.colour import srgb_decode
+from pointillist.imaging.io import to_8bit
 from pointillist.imaging.dither import TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, intensity_thresholds, ordered
 
 TEMPLATES = {"template_4": TEMPLATE_4, "bayer_8": bayer(8), "blue_noise_64": blue_noise_mask(),
@@ -138,9 +139,12 @@ def test_levels_above_two_follow_the_generalised_rule():
             rest = scaled - base * 255
             p = np.minimum(rest * (n * n + 1) // 255, n * n)
             expected = ((base + (p >= t)) * 255.0 / (levels - 1)).astype(np.float32)
-            for array in (image.astype(np.uint8), image.astype(np.float32)):
-                got = np.asarray(ordered(array, template, levels=levels))
-                np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4)
+            got = np.asarray(ordered(image.astype(np.float32), template, levels=levels))
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4)
+            # uint8 in, uint8 out: the float32 levels rounded as the 8-bit writers round them
+            eight = np.asarray(ordered(image.astype(np.uint8), template, levels=levels))
+            assert eight.dtype == np.uint8
+            np.testing.assert_array_equal(eight, to_8bit(got, srgb=False, max_value=255.0))
     # levels = 256 leaves 8-bit input unchanged
     assert np.array_equal(np.asarray(ordered(image.astype(np.uint8), levels=256)), image)
 
@@ -220,12 +224,15 @@ def test_diffusion_is_one_kernel_launch():
     dr.eval(tensor)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
-        for source in (tensor, image.clip(0, 255).astype(np.uint8)):
+        # float32: one launch (clipped in the loop); uint8: the bytes widened in one pass first (a
+        # byte gather per step is scalarised), then the diffusion writing bytes
+        for source, widen in ((tensor, 0), (image.clip(0, 255).astype(np.uint8), 1)):
             dr.eval(floyd_steinberg(source))
             dr.kernel_history()
             dr.eval(floyd_steinberg(source))
             launches = [e for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT]
-            assert len(launches) == 1
+            assert len(launches) == 1 + widen
+            assert sum(e["size"] == image.size for e in launches) == widen  # the widening pass: one lane a pixel
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
 
@@ -306,3 +313,20 @@ def test_float32_single_product_divmod_is_exact_below_2_to_22():
         q, r = divmod_u32(UInt32(a), divisor, top)
         assert np.array_equal(np.asarray(q), a // divisor), divisor
         assert np.array_equal(np.asarray(r), a % divisor), divisor
+
+
+def test_uint8_pre_tiled_map_equals_the_table_path(monkeypatch):
+    """1-bit uint8 ordered dithering compares the bytes with a cached pre-tiled byte map; it equals
+    the per-pixel table route (taken above the size limit) and the SPEC rule, for every shape."""
+    import pointillist.imaging.dither as dither_module
+
+    rng = np.random.default_rng(11)
+    for shape in ((37, 45), (16, 64, 3), (5, 7, 1), (64, 70)):
+        image = rng.integers(0, 256, shape).astype(np.uint8)
+        for template in (TEMPLATE_4, bayer(8), blue_noise_mask(), clustered_dot(3)):
+            mapped = np.asarray(ordered(image, template))
+            assert mapped.dtype == np.uint8
+            assert np.array_equal(mapped, np.asarray(ordered(image.astype(np.float32), template)))
+            monkeypatch.setattr(dither_module, "_TILED_MAP_BYTES", 0)
+            assert np.array_equal(np.asarray(ordered(image, template)), mapped)
+            monkeypatch.undo()

@@ -103,9 +103,10 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
     assert path == "columns" and _same_bits(a, b)
 
 
-@pytest.mark.parametrize("nx", [64, 16, 9])
+@pytest.mark.parametrize("nx", [64, 16, 10, 9])
 def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
-    # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x);
+    # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x; rows of a
+    # multiple of 4 words are read 4 words a lane and load, nx = 10 one word at a time);
     # nx odd: one float16 gather a voxel
     from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
 

@@ -206,3 +206,26 @@ def test_apply_steps_docstring_and_linear_input():
     # clip then sRGB-encode: 0 -> 0, 0.5 -> 188, 1 and 4 -> 255; threshold 128
     assert np.asarray(out.image).tolist() == [[0.0, 255.0], [255.0, 255.0]]
     assert out.notes == ["post: input is linear light; applied tonemap:clip first"]
+
+
+def test_steps_take_and_pass_uint8_tensors(tmp_path):
+    """8-bit in, 8-bit out: the tone and dither steps hand uint8 tensors to each other and to the
+    PNG writer; apply_steps takes a uint8 tensor as input (it computes on float32)."""
+    from drjit.llvm import TensorXu8
+
+    from pointillist.post import apply_steps
+    from pointillist.steps import steps
+
+    grey8 = RNG.integers(0, 256, (20, 24), dtype=np.uint8)
+    known = steps()
+    current = grey8
+    for name, kwargs in (("gamma", {"gamma": 2.2}), ("equalize", {}), ("quantize", {"levels": 6}),
+                         ("stretch", {"r1": 20, "s1": 10, "r2": 200, "s2": 240}),
+                         ("dither", {"method": "floyd_steinberg"})):
+        current = known[name].function(current, **kwargs)
+        assert isinstance(current, TensorXu8), name
+    write_png(tmp_path / "chain.png", current, srgb=False, max_value=255.0)
+    assert np.array_equal(png(tmp_path / "chain.png"), np.asarray(current))
+    applied = apply_steps(TensorXu8(grey8), "gamma:2.2;sobel")
+    expected = apply_steps(grey8.astype(np.float32), "gamma:2.2;sobel")
+    np.testing.assert_array_equal(np.asarray(applied.image), np.asarray(expected.image))

@@ -24,6 +24,17 @@ def a(x):
     return np.asarray(x)
 
 
+def as_8bit(float_result):
+    """What the 8-bit writers make of a float result (the reference for uint8 output)."""
+    return to_8bit(a(float_result), srgb=False, max_value=255.0)
+
+
+def assert_8bit(result, float_result):
+    """uint8 in, uint8 out: ``result`` is uint8 and equals ``float_result`` as the writers round it."""
+    assert a(result).dtype == np.uint8
+    np.testing.assert_array_equal(a(result), as_8bit(float_result))
+
+
 # ------------------------------------------------------------------------------------------ SPEC references
 
 def spec_equalize(levels_image: np.ndarray, levels: int) -> np.ndarray:
@@ -62,9 +73,13 @@ def test_gamma_formula_and_opencv(rng):
 
 
 def test_gamma_uint8_table_equals_float_path():
-    np.testing.assert_array_equal(a(gamma(GREY8, 2.2)), a(gamma(GREY8.astype(np.float32), 2.2)))
-    np.testing.assert_array_equal(a(gamma(RGB8, 0.45)), a(gamma(RGB8.astype(np.float32), 0.45)))
-    np.testing.assert_array_equal(a(gamma(GREY8_PACKED, 3)), a(gamma(GREY8_PACKED.astype(np.float32), 3)))
+    assert_8bit(gamma(GREY8, 2.2), gamma(GREY8.astype(np.float32), 2.2))
+    assert_8bit(gamma(RGB8, 0.45), gamma(RGB8.astype(np.float32), 0.45))
+    assert_8bit(gamma(GREY8_PACKED, 3), gamma(GREY8_PACKED.astype(np.float32), 3))
+    # and what OpenCV users write: cv2.LUT with the rounded table (no value of this table is a tie)
+    table = np.round(255 * (np.arange(256) / 255) ** (1 / 2.2)).astype(np.uint8)
+    np.testing.assert_array_equal(a(gamma(GREY8, 2.2)), cv2.LUT(GREY8, table))
+    assert a(gamma(GREY8.astype(np.float32), 2.2)).dtype == np.float32  # float in, float out
 
 
 def test_gamma_extremes():
@@ -124,7 +139,7 @@ def test_gamma_bad_types_and_shapes():
 def test_stretch_matches_spec(points):
     x = np.arange(256, dtype=np.float32).reshape(16, 16)
     np.testing.assert_allclose(a(contrast_stretch(x, *points)), spec_stretch(x, *points), atol=1e-4)
-    np.testing.assert_array_equal(a(contrast_stretch(x.astype(np.uint8), *points)), a(contrast_stretch(x, *points)))
+    assert_8bit(contrast_stretch(x.astype(np.uint8), *points), contrast_stretch(x, *points))
 
 
 def test_stretch_hand_case_and_identity():
@@ -134,7 +149,11 @@ def test_stretch_hand_case_and_identity():
     np.testing.assert_allclose(a(contrast_stretch(x, 50, 25, 155, 235)), [[0, 12.5, 25, 125, 235, 245, 255]],
                                rtol=1e-6)
     np.testing.assert_allclose(a(contrast_stretch(x, 40, 40, 180, 180)), x, atol=1e-5)
-    np.testing.assert_array_equal(a(contrast_stretch(RGB8, 0, 0, 255, 255)), RGB8.astype(np.float32))
+    np.testing.assert_array_equal(a(contrast_stretch(RGB8, 0, 0, 255, 255)), RGB8)
+    assert a(contrast_stretch(RGB8, 0, 0, 255, 255)).dtype == np.uint8
+    # the module example's 127.5 is a tie: half to even, as the writers round it
+    assert a(contrast_stretch(np.array([[0, 50, 100, 150, 255]], np.uint8), 50, 25, 150, 230)).tolist() == \
+        [[0, 25, 128, 230, 255]]
 
 
 def test_stretch_degenerate_breakpoints():
@@ -185,8 +204,8 @@ def test_quantize_definition(levels, mode):
         expected = levels_out[np.abs(x[:, None] - levels_out[None, :]).argmin(axis=1)]
     got = a(quantize(x.reshape(16, 16), levels, mode=mode)).ravel()
     np.testing.assert_allclose(got, expected, rtol=1e-6)
-    np.testing.assert_array_equal(a(quantize(x.astype(np.uint8).reshape(16, 16), levels, mode=mode)),
-                                  a(quantize(x.reshape(16, 16), levels, mode=mode)))
+    assert_8bit(quantize(x.astype(np.uint8).reshape(16, 16), levels, mode=mode),
+                quantize(x.reshape(16, 16), levels, mode=mode))
     assert len(np.unique(got)) == levels
 
 
@@ -223,11 +242,13 @@ def test_quantize_rejects_bad_levels(levels, error):
 
 def test_lut_matches_opencv(rng):
     table = rng.integers(0, 256, 256).astype(np.uint8)
-    for image in (GREY8, GREY8_PACKED, RGB8):
-        np.testing.assert_array_equal(a(lut(image, table)), cv2.LUT(image, table).astype(np.float32))
+    for image in (GREY8, GREY8_PACKED, RGB8):  # uint8 in, uint8 out, as cv2.LUT with a uint8 table
+        assert a(lut(image, table)).dtype == np.uint8
+        np.testing.assert_array_equal(a(lut(image, table)), cv2.LUT(image, table))
+        np.testing.assert_array_equal(a(lut(image.astype(np.float32), table)),
+                                      cv2.LUT(image, table).astype(np.float32))
     per_channel = rng.integers(0, 256, (256, 3)).astype(np.uint8)
-    np.testing.assert_array_equal(a(lut(RGB8, per_channel)),
-                                  cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)).astype(np.float32))
+    np.testing.assert_array_equal(a(lut(RGB8, per_channel)), cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)))
     np.testing.assert_array_equal(a(lut(RGB8.astype(np.float32), per_channel)),
                                   cv2.LUT(RGB8, per_channel.reshape(256, 1, 3)).astype(np.float32))
 
@@ -257,8 +278,10 @@ def test_lut_rejects_bad_tables():
                          ids=["odd", "packed", "one-pixel", "black"])
 def test_equalize_matches_spec_uint8(image):
     expected = spec_equalize(image, 256)
-    np.testing.assert_array_equal(a(equalize_histogram(image)), expected)
+    np.testing.assert_array_equal(a(equalize_histogram(image)), expected)  # integral: bit-identical
+    assert a(equalize_histogram(image)).dtype == np.uint8
     np.testing.assert_array_equal(a(equalize_histogram(image.astype(np.float32))), expected)
+    assert a(equalize_histogram(image.astype(np.float32))).dtype == np.float32
 
 
 def test_equalize_levels_and_float_binning(rng):
@@ -276,14 +299,16 @@ def test_equalize_properties(rng):
     assert a(equalize_histogram(np.full((4, 4), 255, np.uint8))).max() == 255
     # the result's cumulative distribution is the uniform one: P(out <= F) = (F + 1) / L to rounding
     skewed = (rng.random((64, 64)) ** 3 * 255).astype(np.uint8)
-    out = a(equalize_histogram(skewed)).ravel()
+    out = a(equalize_histogram(skewed)).ravel().astype(np.int64)  # uint8 out: widen before arithmetic
     levels = np.unique(out)
     cdf = np.searchsorted(np.sort(out), levels, side="right") / out.size
     positive = levels > 0
     assert np.all(np.abs(cdf[positive] - (levels[positive] + 1) / 256) <= 0.5 / 256 + 1e-9)
     assert len(levels) > 100
     # OpenCV's variant (cdf - cdf_min) / (N - cdf_min) differs by at most a couple of levels
-    assert np.abs(a(equalize_histogram(GREY8)) - cv2.equalizeHist(GREY8)).max() <= 2
+    assert np.abs(a(equalize_histogram(GREY8)).astype(int) - cv2.equalizeHist(GREY8)).max() <= 2
+    # levels < 256 on uint8: F(i) 255 / (L - 1) rounded as the writers round it
+    assert_8bit(equalize_histogram(GREY8, 6), equalize_histogram(GREY8.astype(np.float32), 6))
 
 
 def test_equalize_colour_through_hsv_v():
@@ -292,9 +317,9 @@ def test_equalize_colour_through_hsv_v():
     v = np.round(hsv[..., 2] * 255).astype(np.int64)
     hsv[..., 2] = spec_equalize(v, 256) / 255.0
     expected = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB) * 255
-    ours = a(equalize_histogram(RGB8))
+    ours = a(equalize_histogram(image))
     np.testing.assert_allclose(ours, expected, atol=2e-3)
-    np.testing.assert_allclose(a(equalize_histogram(image)), ours)
+    assert_8bit(equalize_histogram(RGB8), ours)  # uint8 RGB: the same, rounded in the same pass
     ours_hsv = cv2.cvtColor(ours / 255, cv2.COLOR_RGB2HSV)
     orig_hsv = cv2.cvtColor(image / 255, cv2.COLOR_RGB2HSV)
     keep = (ours_hsv[..., 2] > 0.05) & (orig_hsv[..., 1] > 0.05)
@@ -463,7 +488,7 @@ def test_uint8_views_misaligned_and_strided(rng):
         np.testing.assert_array_equal(histogram(image), np.bincount(image.ravel(), minlength=256))
         np.testing.assert_array_equal(a(equalize_histogram(image)), spec_equalize(image, 256))
         np.testing.assert_array_equal(a(lut(image, table)), table[image])
-        np.testing.assert_array_equal(a(gamma(image, 2.2)), a(gamma(image.astype(np.float32), 2.2)))
+        assert_8bit(gamma(image, 2.2), gamma(image.astype(np.float32), 2.2))
 
 
 def test_uint8_result_does_not_alias_input():
@@ -546,3 +571,71 @@ def test_tonemap_fixed_curves_are_one_pass(rng):
         assert [k["size"] for k in kernels] == [24 * 40]
     result, messages = warned(tonemap, hdr, "aces")
     assert a(result)[0, 0, 1] == 255.0 and "1 non-finite" in messages[0]
+
+
+# ------------------------------------------------------------------------------------------ 8-bit in, 8-bit out
+
+def test_uint8_lut_rounds_table_as_the_writers():
+    """A float table on uint8 input: entries rounded half to even and clipped, as to_8bit writes them."""
+    table = np.arange(256) * 1.5 - 20.25          # below 0, ties (x.5), above 255
+    table[:4] = [0.5, 1.5, 2.5, -0.5]
+    assert_8bit(lut(GREY8, table), lut(GREY8.astype(np.float32), table))
+    assert a(lut(np.array([[0, 1, 2, 3, 255]], np.uint8), table)).tolist() == [[0, 2, 2, 0, 255]]
+
+
+def test_uint8_tensors_in_and_through_chains():
+    """A TensorXu8 (what the 8-bit operations return) is 8-bit input too; float operations take it."""
+    from drjit.llvm import TensorXu8
+
+    from pointillist.imaging.filters import sobel
+
+    tensor = TensorXu8(GREY8)
+    for op in (lambda x: gamma(x, 2.2), lambda x: contrast_stretch(x, 50, 20, 200, 235),
+               lambda x: quantize(x, 5), lambda x: lut(x, 255 - np.arange(256)), equalize_histogram):
+        from_tensor, from_numpy = op(tensor), op(GREY8)
+        assert isinstance(from_tensor, TensorXu8) and a(from_tensor).dtype == np.uint8
+        np.testing.assert_array_equal(a(from_tensor), a(from_numpy))
+    # gamma (uint8) -> equalisation (uint8) -> sobel (float input, as_tensor widens the bytes)
+    chained = equalize_histogram(gamma(GREY8, 2.2))
+    np.testing.assert_array_equal(a(chained), a(equalize_histogram(a(gamma(GREY8, 2.2)))))
+    np.testing.assert_array_equal(a(sobel(chained)), a(sobel(a(chained).astype(np.float32))))
+    assert a(tonemap(TensorXu8(GREY8), "clip")).dtype == np.float32  # not an 8-bit operation: float out
+
+
+def test_uint8_result_written_as_png(tmp_path):
+    """A uint8 result written by the 8-bit writer is the float result written (the same bytes)."""
+    from PIL import Image
+
+    from pointillist.imaging.io import write_png
+
+    for name, result, float_result in (("gamma", gamma(RGB8, 2.2), gamma(RGB8.astype(np.float32), 2.2)),
+                                       ("quantize", quantize(GREY8, 3), quantize(GREY8.astype(np.float32), 3))):
+        write_png(tmp_path / f"{name}8.png", result, srgb=False, max_value=255.0)
+        write_png(tmp_path / f"{name}f.png", float_result, srgb=False, max_value=255.0)
+        np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / f"{name}8.png")),
+                                      np.asarray(Image.open(tmp_path / f"{name}f.png")))
+        np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / f"{name}8.png")), a(result))
+
+
+def test_uint8_tables_are_cached_by_curve_not_reused_across_parameters():
+    """The byte tables are cached by the curve's code and captured values: another parameter (or
+    operation) gets its own table; the same parameters reuse it."""
+    from pointillist.imaging import tone
+
+    ramp = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    for first, second in ((lambda x: quantize(x, 3), lambda x: quantize(x, 4)),
+                          (lambda x: gamma(x, 2.2), lambda x: gamma(x, 2.2, a=1.5)),
+                          (lambda x: gamma(x, 2.2), lambda x: gamma(x, 2.2, max_value=200.0)),
+                          (lambda x: contrast_stretch(x, 50, 20, 200, 235),
+                           lambda x: contrast_stretch(x, 50, 20, 200, 236))):
+        a, b = a_copy(first(ramp)), a_copy(second(ramp))
+        assert not np.array_equal(a, b)
+        assert_8bit(second(ramp), second(ramp.astype(np.float32)))
+        assert_8bit(first(ramp), first(ramp.astype(np.float32)))
+    size = len(tone._BYTE_TABLES)
+    gamma(ramp, 2.2)
+    assert len(tone._BYTE_TABLES) == size  # reused
+
+
+def a_copy(x):
+    return np.asarray(x).copy()
