@@ -4,8 +4,8 @@
 Steady state: rounds; each round runs every operation, ours and the peer
 (OpenCV at 1 and at 2 threads, ``cv2.setNumThreads``) back to back, ours first in odd rounds and
 last in even ones (whoever follows OpenCV's 2-thread call shares the cores with its pool's spin), so that
-load from other processes hits both and spreads over all operations; each call is timed until the result is in memory (Dr.Jit:
-``dr.eval`` + ``dr.sync_thread``). Reported: the median of the repeats (and the
+load from other processes hits both and spreads over all operations; each call is timed until the result
+is in memory (Dr.Jit: ``dr.eval`` + ``dr.sync_thread``). Reported: the median of the repeats (and the
 minimum, the least disturbed run); OpenCV's faster thread count. A kernel
 profile (Dr.Jit's kernel history) counts the JIT kernel launches of one call
 and their summed execution time, and checks that a repeated call compiles
@@ -26,7 +26,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import subprocess
 import sys
 import tempfile
@@ -110,12 +109,15 @@ def peer_cases(grey, rgb, grey8, hdr):
         return np.where(y <= 0.0031308, 12.92 * y, 1.055 * y ** (1 / 2.4) - 0.055) * 255
 
     return {
-        "gamma (float grey)": ("OpenCV pow", lambda: cv2.multiply(cv2.pow(cv2.multiply(grey, 1 / 255.0), 1 / 2.2), 255.0), 0.5, "cv2"),
+        "gamma (float grey)": ("OpenCV pow",
+                               lambda: cv2.multiply(cv2.pow(cv2.multiply(grey, 1 / 255.0), 1 / 2.2), 255.0),
+                               0.5, "cv2"),
         "gamma (uint8 grey, table)": ("OpenCV LUT", lambda: cv2.LUT(grey8, gamma_table), 1.0, "cv2"),
         "contrast_stretch (uint8 grey)": ("OpenCV LUT", lambda: cv2.LUT(grey8, stretch_table), None, "cv2"),
         "quantize (uint8 grey)": ("OpenCV LUT", lambda: cv2.LUT(grey8, quantize_table), None, "cv2"),
         "contrast_stretch (float grey)": ("numpy interp", lambda: np.interp(grey, xp, fp), 0.5, "numpy"),
-        "quantize (float grey)": ("numpy", lambda: np.minimum(np.floor(grey * (8 / 255.0)), 7) * (255 / 7), 0.5, "numpy"),
+        "quantize (float grey)": ("numpy", lambda: np.minimum(np.floor(grey * (8 / 255.0)), 7) * (255 / 7), 0.5,
+                                  "numpy"),
         "rgb_to_hsv (float RGB)": ("OpenCV cvtColor", lambda: cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV), 0.5, "cv2"),
         "hsv_to_rgb (float RGB)": ("OpenCV cvtColor", lambda: cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), 0.5, "cv2"),
         "tonemap aces (float RGB)": ("numpy", aces_numpy, 0.5, "numpy"),
@@ -125,13 +127,15 @@ def peer_cases(grey, rgb, grey8, hdr):
         "histogram (uint8 grey; equalisation's first pass)": (
             "OpenCV calcHist", lambda: cv2.calcHist([grey8], [0], None, [256], [0, 256]), None, "cv2"),
         "equalize_histogram (float grey)": ("Pillow ImageOps.equalize",
-                                            lambda: np.asarray(ImageOps.equalize(Image.fromarray(grey8))), 1.0, "other"),
+                                            lambda: np.asarray(ImageOps.equalize(Image.fromarray(grey8))), 1.0,
+                                            "other"),
         "interleaved RGB copy (HSV floor)": ("OpenCV cvtColor RGB2HSV", lambda: cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV),
                                              None, "cv2"),
     }
 
 
-def interleaved(ours: dict, peers: dict, repeats: int) -> tuple[dict[str, list[float]], dict[str, dict[str, list[float]]]]:
+def interleaved(ours: dict, peers: dict,
+                repeats: int) -> tuple[dict[str, list[float]], dict[str, dict[str, list[float]]]]:
     """Round-robin timing: every round runs every operation, ours then its peer (OpenCV at 1 and
     at 2 threads), so that bursts of load from other processes hit ours and the peer alike and
     spread over all operations. The first round is a warm-up and is dropped."""
@@ -335,8 +339,8 @@ def main() -> int:
     lines.append("*OpenCV's TonemapReinhard is Reinhard-Devlin 2005 with its own gamma, not the same curve: a cost "
                  "reference only. First call = first minus second call time in a fresh process (tracing + "
                  "compilation, or cache load). Kernels = JIT launches of one warm call (memsets and reductions not "
-                 "counted) and their least summed execution time over 5 calls; RECOMPILED would mark a kernel compiled again "
-                 "on a repeated call.")
+                 "counted) and their least summed execution time over 5 calls; RECOMPILED would mark a kernel "
+                 "compiled again on a repeated call.")
     lines.append("")
     lines.extend(NOTES)
     table = "\n".join(lines)
@@ -344,12 +348,9 @@ def main() -> int:
     if args.write:
         plot(rows, ROOT / "benchmarks" / "imaging_tone.png", args.size)
         table = table.replace("\n\n*OpenCV", "\n\n![ratios](imaging_tone.png)\n\n*OpenCV", 1)
-        results = ROOT / "benchmarks" / "RESULTS.md"
-        text = results.read_text()
-        block = re.compile(r"(<!-- BEGIN imaging_tone -->\n).*?(<!-- END imaging_tone -->)", re.S)
-        if not block.search(text):
-            raise SystemExit("RESULTS.md has no imaging_tone block")
-        results.write_text(block.sub(lambda m: m.group(1) + "## Imaging: tone and colour\n\n" + table + "\n" + m.group(2), text))
+        from _results import write_block
+
+        write_block("imaging_tone", "## Imaging: tone and colour\n\n" + table)
     return 0
 
 

@@ -635,7 +635,8 @@ def main() -> None:
         b = part_b((1800, 512, 512))
         print(json.dumps(b, indent=1))
         gb = b["volume_bytes"] / 1e9
-        print(f"\nCT 512x512x1800 int16 ({gb:.2f} GB, {b['path']}): build {b['build_s']:.1f} s, bricks {b['bricks_s']:.1f} s, texture "
+        print(f"\nCT 512x512x1800 int16 ({gb:.2f} GB, {b['path']}): build {b['build_s']:.1f} s, "
+              f"bricks {b['bricks_s']:.1f} s, texture "
               f"{b['texture_s']:.1f} s, oblique 512x512 MIP first {b['first_s']:.2f} s, steady "
               f"{b['steady_s']:.2f} s, peak RSS {b['peak_rss'] / 1e9:.2f} GB = "
               f"{b['peak_rss'] / b['volume_bytes']:.2f}x the volume")

@@ -71,7 +71,8 @@ def _check_kernel(kernel: Any) -> np.ndarray:
     try:
         array = np.asarray(kernel, dtype=np.float64)
     except (TypeError, ValueError) as error:
-        raise TypeError(f"kernel: expected a 2-D array of numbers or a kernel name, got {type(kernel).__name__}") from error
+        raise TypeError(f"kernel: expected a 2-D array of numbers or a kernel name, "
+                        f"got {type(kernel).__name__}") from error
     if array.ndim == 1:
         array = array[None, :]
     if array.ndim != 2 or array.size == 0:
@@ -440,7 +441,8 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     >>> np.asarray(threshold(np.array([[0, 127], [128, 255]], np.uint8))).tolist()
     [[0, 0], [255, 255]]
     """
-    if not isinstance(level, (int, float, np.integer, np.floating)) or isinstance(level, bool) or not np.isfinite(level):
+    number = isinstance(level, (int, float, np.integer, np.floating)) and not isinstance(level, bool)
+    if not number or not np.isfinite(level):
         raise ValueError(f"level: expected a finite number, got {level!r}")
     if not isinstance(max_value, (int, float, np.integer, np.floating)) or not np.isfinite(max_value):
         raise ValueError(f"max_value: expected a finite number, got {max_value!r}")

@@ -851,7 +851,8 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         k = ACES_CONSTANTS
         mapped = [(c * (k["a"] * c + k["b"])) / (c * (k["c"] * c + k["d"]) + k["e"]) for c in channels]
 
-    display = [dr.select(inf, 255.0, srgb_encode_values(dr.clip(m, 0.0, 1.0)) * 255.0) for m, inf in zip(mapped, posinf)]
+    display = [dr.select(inf, 255.0, srgb_encode_values(dr.clip(m, 0.0, 1.0)) * 255.0)
+               for m, inf in zip(mapped, posinf)]
     values = dr.ravel(Array3f(*display)) if nch == 3 else display[0]
     return _finish(TensorXf(values, tensor.shape), count, "tonemap")
 

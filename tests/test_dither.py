@@ -449,7 +449,8 @@ def test_mean_tracks_input_mean(name):
     # Atkinson drops 1/4 of every error, but on this symmetric pattern the losses of the dark
     # and bright parts nearly cancel (measured: -0.76 grey levels).
     assert abs(out.mean() - image.mean()) < 2.0
-    blocks = lambda a: a.reshape(8, 8, 12, 8).mean(axis=(1, 3))
+    def blocks(a):
+        return a.reshape(8, 8, 12, 8).mean(axis=(1, 3))
     assert np.abs(blocks(out) - blocks(image)).mean() < (13 if name == "atkinson" else 8)
 
 
@@ -462,7 +463,8 @@ def test_agrees_with_pillow_on_real_and_grey_images():
     camera = data.camera()
     ours = np.asarray(floyd_steinberg(camera)).astype(np.float64)
     theirs = np.asarray(Image.fromarray(camera).convert("1"), dtype=np.float64) * 255
-    blocks = lambda a: a.reshape(64, 8, 64, 8).mean(axis=(1, 3))
+    def blocks(a):
+        return a.reshape(64, 8, 64, 8).mean(axis=(1, 3))
     assert np.abs(blocks(ours) - blocks(theirs)).mean() < 5  # measured 3.6
     assert np.abs(blocks(ours) - blocks(camera)).mean() < 4  # measured 3.0 (Pillow: 2.9)
     assert abs(ours.mean() - theirs.mean()) < 1.0
@@ -562,13 +564,15 @@ def test_post_step_functions():
     got = np.asarray(spec.function(image, **kwargs))
     assert np.array_equal(got, np.asarray(floyd_steinberg(image, levels=4, serpentine=True)))
     report = spec.report(image, got)
-    assert report["dither error total"] == pytest.approx(float(got.astype(np.float64).sum() - image.astype(np.float64).sum()))
+    expected = float(got.astype(np.float64).sum() - image.astype(np.float64).sum())
+    assert report["dither error total"] == pytest.approx(expected)
     (spec, kwargs), = parse_steps("dither:bayer,n=8")
     assert np.array_equal(np.asarray(spec.function(image, **kwargs)), np.asarray(ordered(image, bayer(8))))
     (spec, kwargs), = parse_steps("dither:halftone,n=3")
     big = spec.function(image, **kwargs)
     assert tuple(big.shape) == (36, 30)
-    assert spec.report(image, big)["dither error average"] == pytest.approx(np.asarray(big).mean() - image.mean(), abs=1e-3)
+    average = spec.report(image, big)["dither error average"]
+    assert average == pytest.approx(np.asarray(big).mean() - image.mean(), abs=1e-3)
     with pytest.raises(ValueError, match="method"):
         spec.function(image, method="nope")
     with pytest.raises(ValueError, match="options"):
@@ -580,7 +584,8 @@ def test_dither_entry_dispatches_by_method():
     image = (rng.random((13, 11, 3)) * 255).astype(np.float32)
     same = [
         (dither.dither(image), floyd_steinberg(image)),
-        (dither.dither(image, "stucki", levels=3, serpentine=True), diffuse(image, "stucki", levels=3, serpentine=True)),
+        (dither.dither(image, "stucki", levels=3, serpentine=True),
+         diffuse(image, "stucki", levels=3, serpentine=True)),
         (dither.dither(image, "error_diffusion", level=100), error_diffusion(image, 100)),
         (dither.dither(image, "threshold", level=90), dither.threshold(image, 90)),
         (dither.dither(image, "ordered"), ordered(image, TEMPLATE_4)),

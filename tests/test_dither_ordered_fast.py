@@ -17,7 +17,8 @@ from drjit.llvm import UInt32
 from pointillist.imaging.arrays import as_tensor, divmod_u32
 from pointillist.imaging.colour import srgb_decode
 from pointillist.imaging.io import to_8bit
-from pointillist.imaging.dither import TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot, intensity_thresholds, ordered
+from pointillist.imaging.dither import (TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot,
+                                        intensity_thresholds, ordered)
 
 TEMPLATES = {"template_4": TEMPLATE_4, "bayer_8": bayer(8), "blue_noise_64": blue_noise_mask(),
              "clustered_3": clustered_dot(3), "clustered_5": clustered_dot(5), "one": np.array([[1]])}
@@ -303,7 +304,8 @@ def test_pattern_uses_block_means_and_the_exact_rule(n, shape):
     # levels > 2 on block-constant integer images (integer means): the generalised rule
     coarse = rng.integers(0, 256, (-(-shape[0] // n), -(-shape[1] // n)) + shape[2:])
     blocky = np.kron(coarse, np.ones((n, n) + (1,) * (len(shape) - 2)))[:shape[0], :shape[1]].astype(np.uint8)
-    assert np.array_equal(np.asarray(pattern(blocky, template, levels=3)), np.asarray(ordered(blocky, template, levels=3)))
+    assert np.array_equal(np.asarray(pattern(blocky, template, levels=3)),
+                          np.asarray(ordered(blocky, template, levels=3)))
 
 
 def test_float32_single_product_divmod_is_exact_below_2_to_22():

@@ -208,7 +208,7 @@ def test_apply_steps_docstring_and_linear_input():
     assert out.notes == ["post: input is linear light; applied tonemap:clip first"]
 
 
-def test_steps_take_and_pass_uint8_tensors(tmp_path):
+def test_steps_take_and_pass_uint8_tensors(tmp_path, rng):
     """8-bit in, 8-bit out: the tone and dither steps hand uint8 tensors to each other and to the
     PNG writer; apply_steps takes a uint8 tensor as input (it computes on float32)."""
     from drjit.llvm import TensorXu8
@@ -216,7 +216,7 @@ def test_steps_take_and_pass_uint8_tensors(tmp_path):
     from pointillist.post import apply_steps
     from pointillist.steps import steps
 
-    grey8 = RNG.integers(0, 256, (20, 24), dtype=np.uint8)
+    grey8 = rng.integers(0, 256, (20, 24), dtype=np.uint8)
     known = steps()
     current = grey8
     for name, kwargs in (("gamma", {"gamma": 2.2}), ("equalize", {}), ("quantize", {"levels": 6}),

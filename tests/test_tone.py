@@ -11,8 +11,8 @@ import pytest
 
 from pointillist.imaging.filters import threshold
 from pointillist.imaging.io import to_8bit
-from pointillist.imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch, dynamic_range,
-                          equalize_histogram, gamma, histogram, lut, quantize, tonemap)
+from pointillist.imaging.tone import (ACES_CONSTANTS, HABLE_CONSTANTS, NonFiniteWarning, contrast_stretch,
+                                      dynamic_range, equalize_histogram, gamma, histogram, lut, quantize, tonemap)
 
 RNG = np.random.default_rng(7)  # module-level data only (drawn once at import); tests use the `rng` fixture
 GREY8 = RNG.integers(0, 256, (37, 53), dtype=np.uint8)          # odd size: not whole 32-bit words
