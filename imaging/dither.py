@@ -191,10 +191,13 @@ def _check_template(template: Any, name: str = "template") -> np.ndarray:
 
 
 def _srgb_decode_255(values: Float) -> Float:
-    """Display intensities 0..255 (sRGB-encoded) -> linear light on 0..255."""
-    from pointillist.imaging.colour import srgb_decode
+    """Display intensities 0..255 (sRGB-encoded, already clipped: finite) -> linear light on 0..255.
 
-    return srgb_decode(TensorXf(values / 255.0, (1, dr.width(values)))).array * 255.0
+    The per-value formula, lazy: the public :func:`~pointillist.imaging.colour.srgb_decode` would
+    count non-finite values and evaluate to warn, splitting the dithering kernel for nothing."""
+    from pointillist.imaging.colour import srgb_decode_values
+
+    return srgb_decode_values(values / 255.0) * 255.0
 
 
 def _quantiser(levels: int, level: float, linear: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
