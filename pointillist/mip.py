@@ -25,6 +25,7 @@ import math
 import os
 import socket
 import time
+import warnings
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -255,7 +256,6 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     return image, integrator
 
 
-# --------------------------------------------------------------------------- turntable frames as tasks
 # --------------------------------------------------------------------------- `pointillist mip --turntable`
 _VOLUMES: OrderedDict = OrderedDict()
 
@@ -396,10 +396,12 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     from pointillist.imaging.volumes import load_volume
     from pointillist.imaging.window import colormap_lut, parse_window
 
-    import warnings
-
     display = parse_window(window) if window else None
     lut = colormap_lut(colormap)
+    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
+             else [out])
+    for name in names:  # before any work
+        check_output_path(name, [volume_path], name="--output")
     start = time.perf_counter()
     load = {"frame": frame, "series": series}
     with warnings.catch_warnings(record=True) as caught:
@@ -407,10 +409,6 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
         volume = load_volume(volume_path, spacing=list(spacing) if spacing else None, **load)
     load_s = time.perf_counter() - start
     views = _frame_views(view, azimuth, elevation, turntable)
-    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
-             else [out])
-    for name in names:
-        check_output_path(name, [volume_path], name="--output")
     options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
                    perspective=perspective, precision=precision, background=background, neurological=neurological)
     integrator = None
