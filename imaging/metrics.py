@@ -25,14 +25,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "image_errors", "error_maps"]
+from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
+
+__all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "image_errors", "error_maps", "as_rgb"]
 
 #: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
 RELMSE_EPSILON = 0.01
 
 
-# ----------------------------------------------------------------------------- errors
-# ----------------------------------------------------------------------------- errors
 #: HDR-FLIP's exposure range runs from log2(x / max Y) to log2(x / max(median Y, FLT_EPSILON)) (Y the
 #: reference's luminance, Rec. 709 weights): flip-evaluator exits the process when the start exceeds the
 #: stop, which happens for every reference whose max Y is below FLT_EPSILON (measured: one pixel of 1e-30
@@ -40,7 +40,8 @@ RELMSE_EPSILON = 0.01
 FLIP_MIN_LUMINANCE = 2.0 * float(np.finfo(np.float32).eps)
 
 
-def _rgb(image: np.ndarray) -> np.ndarray:
+def as_rgb(image: np.ndarray) -> np.ndarray:
+    """``image`` as float64 (H, W, 3): grey (H, W) repeated into RGB, extra channels (alpha) dropped."""
     image = np.asarray(image, dtype=np.float64)
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=2)
@@ -105,7 +106,7 @@ def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -
 
 
 def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    x, r = _rgb(image), _rgb(reference)
+    x, r = as_rgb(image), as_rgb(reference)
     if x.shape != r.shape:
         raise ValueError(f"image: expected the reference's shape {r.shape[:2]}, got {x.shape[:2]}")
     if r.ndim != 3 or r.size == 0:
@@ -137,7 +138,7 @@ def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
     So are references whose maximum is below :data:`FLIP_MIN_LUMINANCE` (the median is taken
     as at least FLT_EPSILON there: one pixel of 1e-30 on black exited the process too).
     """
-    luminance = reference @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    luminance = reference @ np.array(REC709_LUMINANCE_WEIGHTS, np.float32)
     y_max, y_median = float(luminance.max()), float(np.median(luminance))
     if y_median < y_max * (1 - 1e-5) and y_max >= FLIP_MIN_LUMINANCE:
         return {}

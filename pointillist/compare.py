@@ -54,7 +54,6 @@ REFERENCE_SEED = 1_000_003
 
 
 # ------------------------------------------------------------------------------ tasks
-# ------------------------------------------------------------------------------ tasks
 @dataclass(frozen=True)
 class Task:
     """One render of the sweep."""
@@ -227,19 +226,6 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
     return Path(out_dir) / "reference" / "renders" / record.exr
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-# ------------------------------------------------------------------------------ sweep
 # ------------------------------------------------------------------------------ sweep
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
@@ -281,8 +267,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     return records
 
 
-# --------------------------------------------------------------------- sweeps on a Dask cluster
-# --------------------------------------------------------------------------- `pointillist compare` sweeps
+# --------------------------------------------------------------------------- sweeps on a Dask cluster
 def compare_task(call: tuple) -> Any:
     """Run :func:`render_one` ``(*call)`` in this process (a worker).
 

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.imaging.metrics import error_maps
+from pointillist.imaging.metrics import as_rgb, error_maps
 from pointillist.compare_methods import setting_label, sweep_parameter
 from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, slopes, summarise
 from pointillist.render_output import SAMPLE_COUNT_LAYER
@@ -186,7 +186,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         raise ValueError(f"max_bytes: expected a positive size in bytes, got {max_bytes!r}")
     out = Path(out_dir)
     ref_exr = read_exr(reference)
-    ref = _rgb(ref_exr.image)
+    ref = as_rgb(ref_exr.image)
     height, width = ref.shape[:2]
     chosen = _shown(records)
     per_pixel = 4 / 3 * (6 + 12 * len(chosen))  # base64 of float16: RGB + 2 maps + a sample count (bound)
@@ -201,7 +201,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     renders, relmse_maps, count_maps = [], [], []
     for index, ((method, value), record) in enumerate(chosen.items()):
         exr = read_exr(out / "renders" / record.exr)
-        image = _rgb(exr.image)
+        image = as_rgb(exr.image)
         if image.shape != ref.shape:
             raise ValueError(f"records: {record.exr} is {image.shape[1]}x{image.shape[0]}, the reference "
                              f"{width}x{height}")
@@ -268,13 +268,6 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
 
 def _ordinal(n: int) -> str:
     return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
-
-
-def _rgb(image: np.ndarray) -> np.ndarray:
-    image = np.asarray(image, dtype=np.float32)
-    if image.ndim == 2:
-        image = np.repeat(image[..., None], 3, axis=2)
-    return image[..., :3]
 
 
 def _reference_label(path: Path, metadata: dict) -> str:

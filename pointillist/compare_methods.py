@@ -141,8 +141,6 @@ def setting_label(method: str, value: float) -> str:
     return f"{value:g} spp" if parameter == "spp" else f"{parameter} {value:g}"
 
 
-
-# ------------------------------------------------------------------------ scene set-up
 # ------------------------------------------------------------------------ scene set-up
 def _property(tag: str, name: str, value: Any) -> ET.Element:
     return ET.Element(tag, {"name": name, "value": str(value)})

@@ -71,7 +71,6 @@ CACHE_FORMAT = 1
 
 
 # --------------------------------------------------------------------------- workers and clients
-# --------------------------------------------------------------------------- workers and clients
 def setup_process(drjit_threads: int | None = None):
     """Set the variant and register the plugins in this process (idempotent); returns ``mitsuba``."""
     import pointillist
@@ -202,7 +201,6 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
 
 
 # --------------------------------------------------------------------------- keys, cache and task runner
-# --------------------------------------------------------------------------- cache and task runner
 _DIGESTS: dict[tuple[str, int, int], str] = {}
 
 def file_digest(path: str | os.PathLike) -> str:

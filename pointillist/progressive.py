@@ -42,7 +42,6 @@ are correlated (a seed-free ``grid`` gives identical passes: estimate 0) and of 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import signal
@@ -56,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from pointillist.imaging.metrics import RELMSE_EPSILON
+from pointillist.distributed import file_digest
 from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
@@ -451,7 +451,7 @@ def scene_fingerprint(scene, scene_path: str | Path, params: dict[str, str] | No
     import mitsuba as mi
 
     info = scene_info(scene, sensor)
-    return {"scene_sha256": hashlib.sha256(Path(scene_path).read_bytes()).hexdigest(),
+    return {"scene_sha256": file_digest(scene_path),
             "params": json.dumps(dict(sorted((params or {}).items()))), "seed": int(seed), "sensor": int(sensor),
             "film": f"{info['width']}x{info['height']}", "integrator": info["integrator"],
             "sampler": info["sampler"], "variant": mi.variant()}

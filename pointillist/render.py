@@ -88,15 +88,16 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     png_path = out.with_suffix(".png") if png else None
     progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
                    or checkpoint is not None or resume)
+    tiled = bool(tiles or workers or scheduler or cache)
     if progressive:
-        if tiles or workers or scheduler or cache:
+        if tiled:
             raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
                              "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
         return _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png, load_s=load_s,
                                    time_budget=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp,
                                    variance_layer=variance_layer, checkpoint=checkpoint, resume=resume)
     spp = spp or info["spp"]
-    if not (tiles or workers or scheduler or cache):
+    if not tiled:
         image, timing = timed_render(loaded, spp=spp, seed=seed)
         write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png)
         return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s)

@@ -142,7 +142,6 @@ def tile_seed(seed: int, index: int, count: int) -> int:
 
 
 # --------------------------------------------------------------------------- render tasks
-# --------------------------------------------------------------------------- render tasks
 @dataclasses.dataclass(frozen=True)
 class RenderTask:
     """One render: what :func:`render_task` needs, picklable and hashable.
@@ -286,7 +285,6 @@ def render_task(task: RenderTask) -> RenderResult:
                         worker=f"{socket.gethostname()}:{os.getpid()}", task=task)
 
 
-# --------------------------------------------------------------------------- tiled rendering
 # --------------------------------------------------------------------------- tiled rendering
 @dataclasses.dataclass
 class TiledRender:
