@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LPS_FROM_RAS", "ORTHOGONALITY_TOLERANCE", "check_affine", "snap_directions",
+__all__ = ["LPS_FROM_RAS", "ORTHOGONALITY_TOLERANCE", "check_affine", "snap_directions", "inverse_directions",
            "orientation_letters", "axis_codes", "view_labels", "draw_labels"]
 
 #: ``diag(-1, -1, 1, 1)``: RAS+ (NIfTI, Slicer) coordinates to LPS and back (its own inverse).
@@ -76,6 +76,22 @@ def snap_directions(directions: Any, tolerance: float = 1e-6) -> np.ndarray:
     d[np.abs(d) < tolerance] = 0.0
     d[np.abs(np.abs(d) - 1.0) < tolerance] = np.sign(d[np.abs(np.abs(d) - 1.0) < tolerance])
     return d
+
+
+def inverse_directions(matrix: Any) -> np.ndarray:
+    """Inverse of a rotation / reflection (3x3 direction cosines, or a 4x4 pose of them).
+
+    A signed permutation (an axis-aligned acquisition, see :func:`snap_directions`) is inverted
+    exactly by its transpose, so views along patient axes stay exactly along voxel axes (the
+    ``mip`` integrator's column fast path); anything else by numpy's inverse.
+
+    >>> inverse_directions([[0, 1, 0], [-1, 0, 0], [0, 0, 1]]).tolist()
+    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    matrix = np.asarray(matrix, dtype=np.float64)
+    if np.all(np.isin(matrix, (-1.0, 0.0, 1.0))):
+        return matrix.T
+    return np.linalg.inv(matrix)
 
 
 def orientation_letters(vector: Any, *, threshold: float = 0.25, most: int = 3) -> str:

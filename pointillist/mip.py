@@ -239,12 +239,11 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     if native and not _along_patient_axes(axes):
         raise ValueError("native-size: needs an axis-aligned view along the patient's axes (axial, coronal, "
                          "sagittal or azimuth/elevation multiples of 90 degrees)")
+    from pointillist.imaging.orientation import inverse_directions
+
     directions = volume.directions if getattr(integrator, "patient_space", True) else np.eye(3)
-    if np.all(np.isin(directions, (-1.0, 0.0, 1.0))):
-        voxel_axes = tuple(directions.T @ a for a in axes)  # exact: a signed permutation
-    else:
-        inverse = np.linalg.inv(directions)
-        voxel_axes = tuple(np.where(np.abs(v := inverse @ a) < 1e-12, 0.0, v) for a in axes)
+    inverse = inverse_directions(directions)  # exact for an axis-aligned acquisition
+    voxel_axes = tuple(np.where(np.abs(v := inverse @ a) < 1e-12, 0.0, v) for a in axes)
     image_size, half_w, half_h = view_frame(volume.extent, voxel_axes, size=size, native=native,
                                             counts=volume.shape_xyz, spacing=volume.spacing)
     sensor = mi.load_dict(_sensor_dict(mi, np.asarray(volume.extent), axes, image_size, half_w, half_h,

@@ -8,6 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from pointillist.imaging.orientation import inverse_directions
 from pointillist.imaging.volumes import Volume, load_volume, volume_texture
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 from pointillist.plugins.integrators._common import develop_film
@@ -33,14 +34,6 @@ def _parse_spacing(text: str) -> list[float]:
     if len(spacing) != 3 or not all(math.isfinite(s) and s > 0 for s in spacing):
         raise ValueError(f"spacing: expected three positive numbers 'sx,sy,sz', got {text!r}")
     return spacing
-
-
-def _inverse_pose(matrix: np.ndarray) -> np.ndarray:
-    """Inverse of a 4x4 rotation / reflection: the exact transpose for a signed permutation (axis-aligned
-    acquisitions: texture-space rays of axis-aligned views stay exactly axis-aligned), else numpy's inverse."""
-    if np.all(np.isin(matrix, (-1.0, 0.0, 1.0))):
-        return matrix.T
-    return np.linalg.inv(matrix)
 
 
 class MIPIntegrator(mi.SamplingIntegrator):
@@ -219,7 +212,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ext = self.volume.extent
         scalar = (mi.ScalarTransform4f().translate([0.5, 0.5, 0.5])
                   @ mi.ScalarTransform4f().scale([1.0 / e for e in ext])
-                  @ scalar_transform(_inverse_pose(self._orient))
+                  @ scalar_transform(inverse_directions(self._orient))
                   @ self.to_world.inverse())
         transform = mi.Transform4f(scalar)
         dr.make_opaque(transform)
