@@ -29,7 +29,7 @@ import numpy as np
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
-           "to_8bit"]
+           "save_figure", "to_8bit"]
 
 #: EXR header attributes that OpenEXR owns; metadata may not use these names.
 _RESERVED = {
@@ -132,6 +132,18 @@ def atomic_write(path: str | os.PathLike, write) -> None:
 
 
 _SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
+
+
+def save_figure(fig, path: str | os.PathLike, **savefig: Any) -> None:
+    """Write a matplotlib figure as PNG with :func:`atomic_write`, then close it (also on failure).
+
+    ``savefig`` goes to ``Figure.savefig`` (e.g. ``dpi``)."""
+    import matplotlib.pyplot as plt
+
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", **savefig))
+    finally:
+        plt.close(fig)
 
 
 def _hold_signals():

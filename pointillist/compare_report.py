@@ -270,7 +270,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     return paths
 
 def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
-    from pointillist.imaging.io import atomic_write
+    from pointillist.imaging.io import save_figure
 
     import matplotlib
 
@@ -317,7 +317,4 @@ def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    try:
-        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)

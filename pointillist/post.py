@@ -220,7 +220,7 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import check_output_path, save_figure
 
     path = check_output_path(path, inputs, name="--plot")
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
@@ -247,8 +247,5 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
         ax.set_ylabel("pixels")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    try:
-        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, dpi=100)
 

@@ -684,7 +684,7 @@ def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=
     slope -1 (error proportional to 1/t, the Monte Carlo rate) through the last estimate.
     Returns the paths written.
     """
-    from pointillist.imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import atomic_write, check_output_path, save_figure
 
     csv_path, png_path = progress_paths(out)
     check_output_path(csv_path, inputs)
@@ -716,7 +716,6 @@ def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=
                      fontsize=9)
         ax.grid(True, which="both", lw=0.3)
         fig.tight_layout()
-        atomic_write(png_path, lambda tmp: fig.savefig(tmp, format="png"))
-        plt.close(fig)
+        save_figure(fig, png_path)
         written.append(png_path)
     return written

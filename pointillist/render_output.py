@@ -66,7 +66,7 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.imaging.io import atomic_write, check_output_path
+    from pointillist.imaging.io import check_output_path, save_figure
 
     path = check_output_path(path, inputs, name="sample-count heat map")
     counts = np.asarray(counts, dtype=np.float64)
@@ -79,6 +79,5 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     ax.set_title(f"samples per pixel: mean {counts.mean():.1f}, max {counts.max():.0f}", fontsize=9)
     ax.set_axis_off()
     fig.tight_layout()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)
+    save_figure(fig, path)
 
