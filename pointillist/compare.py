@@ -398,8 +398,7 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
     else:
         log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
         reference = render_reference(str(scene), params, str(out), reference_spp)
-        _check_reference(reference, size)
-        taken = _reference_spp(reference)
+        taken = _reference_spp(_check_reference(reference, size).metadata)
         if taken is not None and taken != reference_spp:
             note = (f"reference: the stratified sampler took {taken} spp for the {reference_spp} asked "
                     "(it rounds up to a square)")
@@ -420,11 +419,9 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                          cluster_renders=cluster_renders, notes=notes)
 
 
-def _reference_spp(reference: Path) -> int | None:
-    """The samples per pixel a rendered reference took (its EXR header), or None."""
-    from pointillist.imaging.io import read_exr
-
-    value = read_exr(reference).metadata.get("spp")
+def _reference_spp(metadata: dict) -> int | None:
+    """The samples per pixel a rendered reference took (from its EXR header), or None."""
+    value = metadata.get("spp")
     return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
@@ -440,14 +437,16 @@ def _scene_size(scene: Path, params: dict) -> tuple[tuple[int, int], str]:
     return (info["width"], info["height"]), film_filter(loaded)
 
 
-def _check_reference(reference: Path, size: tuple[int, int]) -> None:
-    """The reference must have the render size ``(width, height)``."""
+def _check_reference(reference: Path, size: tuple[int, int]):
+    """The reference must have the render size ``(width, height)``; returns it as read (an ``EXRImage``)."""
     from pointillist.imaging.io import read_exr
 
     try:
-        image = read_exr(reference).image
+        exr = read_exr(reference)
     except ValueError as error:
         raise UsageError(f"--reference: {error}") from None
+    image = exr.image
     if image.shape[:2] != (size[1], size[0]):
         raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
                          f"renders {size[0]}x{size[1]}")
+    return exr
