@@ -127,25 +127,15 @@ def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
 
 # --------------------------------------------------------------------------- shared machinery
 
-def _u8_indices(image: Any, name: str = "image") -> tuple[UInt32, tuple[int, ...], UInt32 | None]:
+def _u8_indices(image: Any, name: str = "image") -> tuple[UInt32, tuple[int, ...]]:
     """Per-pixel UInt32 values of a uint8 image, read in place (no float conversion, no gather).
 
     The bytes are shared with Dr.Jit as a ``UInt8`` array (zero copy for C-contiguous input)
     and widened inside the consuming kernel, so reading them costs no pass of its own.
-    Returns ``(values, shape, words)``; ``words`` is the same memory viewed as packed
-    little-endian UInt32 words (four pixels each, for the pair histogram), or None when the
-    image cannot be viewed as whole aligned words.
+    Returns ``(values, shape)``.
     """
     image = uint8_array(image, name)
-    flat = image.reshape(-1)
-    return UInt32(UInt8(flat)), tuple(image.shape), _words(flat)
-
-
-def _words(flat: np.ndarray) -> UInt32 | None:
-    """``flat`` (contiguous uint8) viewed as UInt32 words without a copy, or None."""
-    if flat.size % 4 == 0 and flat.ctypes.data % 4 == 0 and sys.byteorder == "little":
-        return UInt32(flat.view(np.uint32))
-    return None
+    return UInt32(UInt8(image.reshape(-1))), tuple(image.shape)
 
 
 def _sanitize(values: Float, white: float | Float) -> tuple[Float, UInt32]:
@@ -209,7 +199,7 @@ def _pointwise(image: Any, function: Callable[[Float], Float], max_value: float,
                 if len(_BYTE_TABLES) >= 64:
                     _BYTE_TABLES.clear()
                 _BYTE_TABLES[key] = table
-        values, shape, _ = _u8_indices(image)
+        values, shape = _u8_indices(image)
         return _done(TensorXu8(_look_up_bytes(table, values), shape))
     tensor = as_tensor(image)
     clean, count = _sanitize(tensor.array, max_value)
@@ -474,7 +464,7 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
     [[255.0, 254.0, 0.0]]
     """
     if is_uint8(image):
-        values, shape, _ = _u8_indices(image)
+        values, shape = _u8_indices(image)
         channels = shape[2] if len(shape) == 3 else 1
         table, width = _table(table, channels, eight_bit=True)
         index = values if width == 1 else values * width + dr.arange(UInt32, dr.width(values)) % width
