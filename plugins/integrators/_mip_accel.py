@@ -24,17 +24,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-__all__ = ["BRICK", "KEY_CHUNK", "column_layout", "reduce_columns", "reduce_half_keys", "brick_grid"]
+__all__ = ["BRICK", "column_layout", "reduce_columns", "reduce_half_keys", "brick_grid"]
 
 #: Voxels per brick side of the skipping grid. 8 is the usual choice of empty-space skipping
 #: in GPU ray casters (e.g. Hadwiger et al., "Real-Time Volume Graphics", 2006, ch. 8): small
 #: enough to hug structures, large enough that the grid (1/512 of the voxels) stays in cache.
 BRICK = 8
-
-#: Slices per lane in the two-stage half-key reduction: a SIMD packet then reads
-#: ``KEY_CHUNK`` sequential streams, which the hardware prefetcher follows (a lane walking
-#: all 512 slices with a 512 KiB stride ran 6x slower here).
-KEY_CHUNK = 32
 
 #: Lanes sharing a row in the x reduction (neighbouring lanes read neighbouring packets).
 X_INTERLEAVE = 16
@@ -257,8 +252,8 @@ def reduce_half_keys(words, shape_zyx, axis: int, mode: str, *, chunk: int | Non
         return _key_to_float(acc)
     if axis == 2 and nz > 1:
         return _reduce_z_streams(words, shape_zyx, pick, chunk or STREAM_GROUP)
-    if chunk is None:
-        chunk = KEY_CHUNK if axis == 2 else 64
+    if chunk is None:  # (z with several slices went to the slice streams above)
+        chunk = 64
     inner = stride // 2  # word pairs across x
     outer = (nx * ny * nz) // (n_a * stride)
     chunks = -(-n_a // chunk)
