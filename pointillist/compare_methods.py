@@ -196,24 +196,9 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
 
     Pointillist must be set up (:func:`pointillist.setup`).
     """
-    import mitsuba as mi
-
-    from pointillist.scene import check_scene_file, check_sensor, mitsuba_message
+    from pointillist.scene import check_scene_file, instantiate_scene, parse_scene
 
     path = check_scene_file(scene_path)
     text = configure_scene(path.read_text(), method, value)
-    resolver = mi.file_resolver()
-    saved = mi.FileResolver(resolver)
-    resolver.prepend(str(path.resolve().parent))
-    try:
-        # parallel=False as in pointillist.scene.load_scene: the parallel loader failed about one
-        # run in ten here (hdrfilm: std::bad_alloc) and orders plugins (hence kernels) randomly.
-        scene = mi.load_string(text, parallel=False, **(params or {}))
-    except RuntimeError as error:
-        raise UsageError(f"scene {path} with {method.name}: {mitsuba_message(error)}") from None
-    finally:
-        resolver.clear()
-        for i in range(len(saved)):
-            resolver.append(saved[i])
-    check_sensor(scene, path)
-    return scene
+    what = f" with {method.name}"
+    return instantiate_scene(parse_scene(path, params, text=text, what=what), what=what)

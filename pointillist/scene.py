@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import re
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from pointillist.errors import UsageError
 
-__all__ = ["parse_defines", "load_scene", "check_scene_file", "check_sensor", "mitsuba_message", "MAX_MESSAGE",
-           "RenderTiming", "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count",
-           "MAX_SAMPLES"]
+__all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
+           "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info",
+           "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -57,22 +58,93 @@ def parse_defines(defines: list[str] | None) -> dict[str, str]:
     return params
 
 
-def load_scene(path: str | Path, params: dict[str, str] | None = None):
-    """Load a Mitsuba scene file with ``$param`` overrides; errors become one-line UsageErrors.
+@dataclass
+class ParsedScene:
+    """A scene file parsed by Mitsuba's parser but not yet instantiated.
 
-    The variant must be set and the plugins registered (:func:`pointillist.setup`).
+    ``state`` is the ``mitsuba.parser.ParserState`` after Mitsuba's own transformations
+    (version upgrade, named references resolved): every node's properties, with transforms and
+    positions in float64 as the XML states them, and ``state.files`` (the scene file and every
+    ``<include>``). Changing ``state`` before :func:`instantiate_scene` changes the scene Mitsuba
+    builds. ``path`` is the scene file, ``params`` the ``-D`` values it was parsed with.
+    """
+
+    path: Path
+    params: dict[str, str]
+    state: Any
+    config: Any
+
+
+@contextmanager
+def _resolving_from(folder: Path):
+    """Mitsuba's file resolver with ``folder`` first, as ``mi.load_file`` sets it up; restored after."""
+    import mitsuba as mi
+
+    saved = mi.file_resolver()
+    resolver = mi.FileResolver(saved)
+    resolver.prepend(str(folder))
+    mi.set_file_resolver(resolver)
+    try:
+        yield
+    finally:
+        mi.set_file_resolver(saved)
+
+
+def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text: str | None = None,
+                what: str = "") -> ParsedScene:
+    """Parse a Mitsuba scene file with ``$param`` overrides, without building it.
+
+    ``text``, when given, is parsed instead of the file's contents (relative paths still resolve
+    against the file's folder). Errors become one-line UsageErrors (``what`` is added to their
+    subject, e.g. ``" with jitter"``). The variant must be set
+    (:func:`pointillist.setup`).
     """
     import mitsuba as mi
 
     path = check_scene_file(path)
+    params = dict(params or {})
+    config = mi.parser.ParserConfig(mi.variant())
+    # parallel=False: Mitsuba's parallel loader instantiates plugins in a random order, which
+    # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
+    config.parallel = False
     try:
-        # parallel=False: Mitsuba's parallel loader instantiates plugins in a random order, which
-        # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
-        scene = mi.load_file(str(path), parallel=False, **(params or {}))
+        with _resolving_from(path.resolve().parent):
+            if text is None:
+                state = mi.parser.parse_file(config, str(path), **params)
+            else:
+                state = mi.parser.parse_string(config, text, **params)
+            mi.parser.transform_all(config, state)
     except RuntimeError as error:
-        raise UsageError(f"scene {path}: {mitsuba_message(error)}") from None
-    check_sensor(scene, path)
+        raise UsageError(f"scene {path}{what}: {mitsuba_message(error)}") from None
+    return ParsedScene(path=path, params=params, state=state, config=config)
+
+
+def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
+    """Build the Mitsuba scene of a :class:`ParsedScene`; errors become one-line UsageErrors.
+
+    Relative file names (textures, meshes, volumes) resolve against the scene file's folder.
+    ``what`` is added to the error's subject (e.g. ``" with jitter"``).
+    """
+    import mitsuba as mi
+
+    try:
+        with _resolving_from(parsed.path.resolve().parent):
+            scene = mi.parser.instantiate(parsed.config, parsed.state)
+    except RuntimeError as error:
+        raise UsageError(f"scene {parsed.path}{what}: {mitsuba_message(error)}") from None
+    if not isinstance(scene, mi.Scene):
+        raise UsageError(f"scene {parsed.path}: expected a <scene> root element, got {type(scene).__name__}")
+    check_sensor(scene, parsed.path)
     return scene
+
+
+def load_scene(path: str | Path, params: dict[str, str] | None = None):
+    """Load a Mitsuba scene file with ``$param`` overrides; errors become one-line UsageErrors.
+
+    :func:`parse_scene` then :func:`instantiate_scene`. The variant must be set and the plugins
+    registered (:func:`pointillist.setup`).
+    """
+    return instantiate_scene(parse_scene(path, params))
 
 
 def check_scene_file(path: str | Path) -> Path:

@@ -90,16 +90,16 @@ def test_configured_scene_loads_serially_like_load_scene(mi, monkeypatch):
     from pointillist.compare_methods import load_configured_scene
 
     calls = []
-    original = mi.load_string
+    original = mi.parser.instantiate
 
-    def spy(text, **kwargs):
-        calls.append(kwargs)
-        return original(text, **kwargs)
+    def spy(config, state):
+        calls.append(config.parallel)
+        return original(config, state)
 
-    monkeypatch.setattr(mi, "load_string", spy)
+    monkeypatch.setattr(mi.parser, "instantiate", spy)
     scene = load_configured_scene(ROOT / "scenes" / "default.xml", METHODS["random"], 2, {"res": "4"})
     assert list(scene.sensors()[0].film().size()) == [4, 4]
-    assert len(calls) == 1 and calls[0].get("parallel") is False and calls[0].get("res") == "4"
+    assert calls == [False]
 
 
 # ------------------------------------------------------------------------------ errors
