@@ -16,6 +16,7 @@ and names the argument it comes from.
 Function            Accepts
 ==================  ===================================================================
 ``real``            int or float (numpy scalars too, not bool) that float32 holds, in bounds
+``real_array``      an array of such reals (a kernel, a table)
 ``float32_finite``  a float derived from checked arguments: finite in float32
 ``integer``         int (numpy integers too, not bool), in bounds
 ``boolean``         bool (numpy bool too)
@@ -52,7 +53,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "float32_finite", "integer", "boolean", "choice", "uint32", "seed"]
+__all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "boolean", "choice",
+           "uint32", "seed"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -74,7 +76,7 @@ def _as_float32(value: float) -> float:
 
 
 def real(value: Any, name: str, *, low: float | None = None, high: float | None = None,
-         low_open: bool = False, high_open: bool = False, allow_inf: bool = False) -> float:
+         low_open: bool = False, high_open: bool = False, allow_inf: bool = False, float32: bool = True) -> float:
     """A real argument as a float that float32 holds, within ``[low, high]``.
 
     Parameters
@@ -88,6 +90,9 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
         on its float32 rounding.
     allow_inf : bool
         Accept +-inf (when the operation gives infinity a meaning, e.g. an infinite white point).
+    float32 : bool
+        Apply the float32 rule (default). ``False`` only for a value that never reaches float32
+        itself, where the caller checks what does (e.g. a gamma whose kernel sees 1 / gamma).
 
     Returns
     -------
@@ -120,7 +125,7 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
             from None
     if math.isnan(number) or (math.isinf(number) and not allow_inf):
         raise ValueError(f"{name}: expected a finite number, got {number:g}")
-    rounded = _as_float32(number)
+    rounded = _as_float32(number) if float32 else number
     if math.isfinite(number) and not math.isfinite(rounded):
         raise ValueError(f"{name}: expected a number float32 can hold (|x| <= {FLOAT32_MAX:g}), got {number:g}")
     for bound, is_low, is_open in ((low, True, low_open), (high, False, high_open)):
@@ -135,6 +140,44 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
                     f" ({candidate:g} in float32, the precision of the computation)"
                 raise ValueError(f"{name}: expected a number {relation} {bound:g}, got {number:g}{note}")
     return number
+
+
+def real_array(values: Any, name: str) -> np.ndarray:
+    """An array of reals (a kernel, a table) as float64 numpy, every value finite in float32.
+
+    Shapes are the caller's to check. A non-numeric array (strings, objects, complex, bool) is a
+    ``TypeError``; NaN, +-inf or a value beyond float32's range a ``ValueError``.
+
+    Examples
+    --------
+    >>> from pointillist.checks import real_array
+    >>> real_array([[1, 2], [3, 4]], "kernel").dtype
+    dtype('float64')
+    >>> real_array([1.0, 1e39], "table")
+    Traceback (most recent call last):
+    ...
+    ValueError: table: expected values float32 can hold (|x| <= 3.40282e+38), got 1e+39 at index 1
+    """
+    try:
+        array = np.asarray(values)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{name}: expected an array of numbers, got {type(values).__name__}") from error
+    if array.dtype == np.bool_ or not (np.issubdtype(array.dtype, np.integer) or
+                                       np.issubdtype(array.dtype, np.floating)):
+        raise TypeError(f"{name}: expected an array of numbers, got dtype {array.dtype}")
+    array = array.astype(np.float64)
+    bad = ~np.isfinite(array)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name}: expected finite values, got {array[index]:g} at index "
+                         f"{index[0] if len(index) == 1 else index}")
+    with np.errstate(over="ignore"):
+        over = ~np.isfinite(array.astype(np.float32))
+    if over.any():
+        index = tuple(int(i) for i in np.argwhere(over)[0])
+        raise ValueError(f"{name}: expected values float32 can hold (|x| <= {FLOAT32_MAX:g}), got "
+                         f"{array[index]:g} at index {index[0] if len(index) == 1 else index}")
+    return array
 
 
 def float32_finite(value: float, name: str, quantity: str) -> float:
