@@ -33,14 +33,17 @@ range fits); other data into float32 textures.
 
 from __future__ import annotations
 
+import gzip
 import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pointillist.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS, axis_codes, check_affine, snap_directions
 
 __all__ = [
@@ -360,8 +363,12 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
     ``scanner-xyz`` (ACR-NEMA 2.0 / DICOM scanner coordinates; the NRRD spec does not pin
     its axes down) and ``3D-right-handed`` / ``3D-left-handed`` are taken as LPS, with a
     warning. A file with ``spacings`` only (no orientation) keeps its voxel axes as L, P, S
-    with a warning. The array is read in C order: ``data[z, y, x]`` with NRRD's first
-    (fastest) axis as x; ``space directions`` row n is axis n's step.
+    with a warning, and so does a file whose ``space directions`` are ``none`` (NRRD's word for an
+    axis without a direction in space) for two or three axes; a single ``none`` axis is completed
+    as the right-handed normal of the other two (its ``spacings`` entry long, else 1), with a
+    warning. The header's claimed data size is checked against the file's before reading. The
+    array is read in C order: ``data[z, y, x]`` with NRRD's first (fastest) axis as x; ``space
+    directions`` row n is axis n's step.
     """
     try:
         import nrrd
@@ -369,39 +376,173 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
         raise ValueError("volume: reading NRRD needs pynrrd (pip install 'pointillist[medical]')") from None
     path = Path(path)
     try:
+        header = nrrd.read_header(str(path))
+        _check_nrrd_size(path, header)
         data, header = nrrd.read(str(path), index_order="C")
-    except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, ValueError, OSError...
-        raise ValueError(f"volume: {path}: not a readable NRRD file ({error or type(error).__name__})") from None
+    except ValueError as error:
+        if str(error).startswith("volume:"):
+            raise
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
+    except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, OSError, zlib.error...
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NRRD, got {data.ndim} dimensions")
     meta = {"format": "nrrd"}
-    directions = header.get("space directions")
     space = str(header.get("space", "")).strip().lower()
-    if directions is not None:
-        directions = np.asarray(directions, dtype=np.float64)
-        if directions.shape != (3, 3) or not np.all(np.isfinite(directions)):
-            raise ValueError(f"volume: {path}: expected three 3-D 'space directions', got {directions.tolist()}")
-        signs = _NRRD_SPACES.get(space)
-        if signs is None:
-            _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
-            signs = (1, 1, 1)
-        meta["space"] = space
-        affine = np.eye(4)
-        affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
-        origin = np.asarray(header.get("space origin", (0.0, 0.0, 0.0)), dtype=np.float64)
-        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-            origin = np.zeros(3)
-        affine[:3, 3] = origin * signs
-        try:
+    origin = _nrrd_vector(header.get("space origin"))
+    directions, assumed = _nrrd_directions(header.get("space directions"), header.get("spacings"))
+    try:
+        if directions is not None:
+            if assumed:
+                _warn(f"volume: {path}: {assumed}")
+            signs = _NRRD_SPACES.get(space)
+            if signs is None:
+                _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
+                signs = (1, 1, 1)
+            meta["space"] = space
+            affine = np.eye(4)
+            affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
+            affine[:3, 3] = (origin if origin is not None else np.zeros(3)) * signs
             return Volume(np.ascontiguousarray(data), metadata=meta, affine=affine)
-        except ValueError as error:
-            raise ValueError(f"volume: {path}: {error}") from None
-    spacing = (1.0, 1.0, 1.0)
-    if header.get("spacings") is not None:
-        spacing = tuple(float(s) for s in header["spacings"])
-    _warn(f"volume: {path}: NRRD without 'space directions'; voxel axes x, y, z taken as L, P, S")
-    origin = tuple(header.get("space origin", (0.0, 0.0, 0.0)))
-    return Volume(np.ascontiguousarray(data), spacing, origin, meta)
+        spacing = (1.0, 1.0, 1.0)
+        if header.get("spacings") is not None:
+            spacing = tuple(float(s) for s in header["spacings"])
+        assumed = assumed or "NRRD without 'space directions'"
+        _warn(f"volume: {path}: {assumed}; voxel axes x, y, z taken as L, P, S")
+        return Volume(np.ascontiguousarray(data), spacing, tuple(origin) if origin is not None else (0.0, 0.0, 0.0),
+                      meta)
+    except ValueError as error:
+        raise ValueError(f"volume: {path}: {error}") from None
+
+
+#: Bytes per value of each NRRD ``type`` (every spelling the NRRD format allows).
+_NRRD_ITEMSIZE = {
+    **dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsigned char", "uint8", "uint8_t"), 1),
+    **dict.fromkeys(("short", "short int", "signed short", "signed short int", "int16", "int16_t", "ushort",
+                     "unsigned short", "unsigned short int", "uint16", "uint16_t"), 2),
+    **dict.fromkeys(("int", "signed int", "int32", "int32_t", "uint", "unsigned int", "uint32", "uint32_t",
+                     "float"), 4),
+    **dict.fromkeys(("longlong", "long long", "long long int", "signed long long", "signed long long int", "int64",
+                     "int64_t", "ulonglong", "unsigned long long", "unsigned long long int", "uint64", "uint64_t",
+                     "double"), 8),
+}
+
+
+def _check_nrrd_size(path: Path, header: dict) -> None:
+    """The claimed data size against the file's, before pynrrd allocates it (for data in the file
+    itself, raw or compressed; a detached ``data file`` is pynrrd's to check)."""
+    if header.get("data file") or header.get("datafile"):
+        return
+    sizes = [int(n) for n in np.atleast_1d(header.get("sizes", []))]
+    kind = " ".join(str(header.get("type", "")).lower().split())
+    itemsize = _NRRD_ITEMSIZE.get(kind, 1)  # an unknown or block type: pynrrd's own error follows
+    encoding = str(header.get("encoding", "raw")).strip().lower()
+    if encoding in ("txt", "text", "ascii"):
+        itemsize = 2  # a digit and a separator at least
+    if any(n < 1 for n in sizes):
+        raise ValueError(f"volume: {path}: NRRD sizes must be positive, got {sizes}")
+    _check_claimed_size(path, int(np.prod(sizes, dtype=object)) * itemsize,
+                        f"{'x'.join(map(str, sizes))} values of type {kind}",
+                        compressed=encoding in ("gzip", "gz", "bzip2", "bz2"))
+
+
+def _nrrd_vector(value: Any) -> np.ndarray | None:
+    """A finite 3-vector of a NRRD header (``space origin``), or None."""
+    if value is None:
+        return None
+    try:
+        vector = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return vector if vector.shape == (3,) and np.all(np.isfinite(vector)) else None
+
+
+def _nrrd_directions(value: Any, spacings: Any) -> tuple[np.ndarray | None, str | None]:
+    """NRRD ``space directions`` as ``(3x3 array or None, what was assumed or None)``; row n is axis n's step.
+
+    ``none`` marks an axis without a direction in space (NRRD's word for a non-spatial axis). With
+    one such axis of three, it is completed as the right-handed normal of the other two, its length
+    the axis's ``spacings`` entry (else 1); with more, or other unusable values, the orientation is
+    left out (None: the caller takes the voxel axes as L, P, S).
+    """
+    if value is None:
+        return None, None
+    try:
+        rows = [np.asarray(row, dtype=np.float64).reshape(-1) for row in value]
+    except (TypeError, ValueError):
+        rows = []
+    usable = [row.shape == (3,) and bool(np.all(np.isfinite(row))) and bool(np.any(row)) for row in rows]
+    if len(rows) == 3 and all(usable):
+        return np.array(rows), None
+    if len(rows) == 3 and sum(usable) == 2:
+        missing = usable.index(False)
+        normal = np.cross(rows[(missing + 1) % 3], rows[(missing + 2) % 3])  # (x, y, z) right-handed
+        if np.linalg.norm(normal) > 0:
+            try:
+                step = float(np.atleast_1d(np.asarray(spacings, dtype=np.float64))[missing])
+            except (TypeError, ValueError, IndexError):
+                step = float("nan")
+            length = step if np.isfinite(step) and step > 0 else 1.0
+            rows[missing] = normal / np.linalg.norm(normal) * length
+            return np.array(rows), (f"NRRD axis {missing} has no space direction ('none'); taken as the "
+                                    f"right-handed normal of the other two, {length:g} long")
+    given = ", ".join("a direction" if ok else "none" for ok in usable) or "nothing"
+    return None, f"NRRD 'space directions' give {given}"
+
+
+def _open_nifti(nibabel: Any, path: Path) -> tuple[Any, Any]:
+    """``(image, stream)``: the NIfTI image of ``path`` and, for a ``.gz`` file, the gzip stream its
+    data is read from (:func:`_drain` checks that stream's CRC once the data is read).
+
+    nibabel reads a compressed file only up to the end of the voxel data, so the gzip trailer (CRC-32
+    and length) is never checked and a damaged file gives a damaged volume without a word. Here the
+    image reads from a ``gzip.GzipFile`` this function opens, which the caller then reads to its end.
+    """
+    if not path.name.lower().endswith(".gz"):
+        return nibabel.load(str(path)), None
+    from nibabel.fileholders import FileHolder
+
+    stream = gzip.GzipFile(filename=str(path), mode="rb")
+    try:
+        head = stream.read(4)
+        stream.seek(0)
+        size = int.from_bytes(head, "little") if int.from_bytes(head, "little") in (348, 540) \
+            else int.from_bytes(head, "big")
+        kind = nibabel.Nifti2Image if size == 540 else nibabel.Nifti1Image
+        holder = FileHolder(filename=str(path), fileobj=stream)
+        return kind.from_file_map({"header": holder, "image": holder}, mmap=False), stream
+    except BaseException:
+        stream.close()
+        raise
+
+
+#: Deflate's largest compression ratio (zlib's technical details: 1032:1): a gzip file of n bytes
+#: holds at most 1032 n bytes of data, which bounds what a compressed header may claim.
+_DEFLATE_MAX_RATIO = 1032
+
+
+def _check_claimed_size(path: Path, claimed: int, what: str, *, compressed: bool) -> None:
+    """ValueError before anything is allocated when a header claims more data bytes than the file can
+    hold (its size, or deflate's largest ratio times its size for a compressed file)."""
+    size = path.stat().st_size
+    limit = size * _DEFLATE_MAX_RATIO if compressed else size
+    if claimed > limit:
+        holds = f"at most {limit} bytes once decompressed" if compressed else f"{size} bytes"
+        raise ValueError(f"volume: {path}: the header claims {what} ({claimed} bytes) but the file holds {holds}; "
+                         "a damaged or truncated file")
+
+
+def _drain(stream: Any) -> None:
+    """Read a gzip stream to its end (its CRC-32 and length are checked there), then close it."""
+    if stream is None:
+        return
+    try:
+        while stream.read(16 << 20):
+            pass
+    finally:
+        stream.close()
 
 
 def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
@@ -412,16 +553,21 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
     :data:`~pointillist.imaging.orientation.LPS_FROM_RAS`. The array is transposed from
     NIfTI's (i, j, k) to (k, j, i). Scaled data (scl_slope / scl_inter) is read as
     float32; unscaled data keeps its dtype. A 4-D image needs ``frame`` (only that
-    volume is read).
+    volume is read). A ``.nii.gz`` is read to its end, so that a damaged file (its gzip
+    CRC-32 or length does not match) is refused rather than read as other voxel values.
     """
     try:
         import nibabel
     except ImportError:
         raise ValueError("volume: reading NIfTI needs nibabel (pip install 'pointillist[medical]')") from None
     path = Path(path)
+    stream = None
     try:
-        image = nibabel.load(str(path))
+        image, stream = _open_nifti(nibabel, path)
         shape = tuple(int(n) for n in image.shape)
+        dtype = image.header.get_data_dtype()
+        _check_claimed_size(path, int(image.header.get_data_offset()) + int(np.prod(shape)) * dtype.itemsize,
+                            f"{'x'.join(map(str, shape))} voxels of {dtype}", compressed=stream is not None)
         if len(shape) == 4 and shape[3] > 1:
             index: Any = (..., _pick_frame(path, shape[3], frame))
         elif len(shape) == 4:
@@ -440,12 +586,19 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
             data = np.asanyarray(raw)
         else:
             data = np.asarray(proxy[index], dtype=np.float32)
+        _drain(stream)
     except ValueError as error:
         if str(error).startswith(("volume:", "frame:")):
             raise
-        raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
+        raise ValueError(f"volume: {path}: not a readable NIfTI file ({one_line(error)})") from None
+    except (EOFError, zlib.error, gzip.BadGzipFile) as error:
+        raise ValueError(f"volume: {path}: damaged or truncated gzip data ({one_line(error)})") from None
     except Exception as error:  # noqa: BLE001 - nibabel raises many kinds
-        raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
+        raise ValueError(f"volume: {path}: not a readable NIfTI file "
+                         f"({one_line(error) or type(error).__name__})") from None
+    finally:
+        if stream is not None:
+            stream.close()
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NIfTI image, got shape {data.shape}")
     header = image.header
