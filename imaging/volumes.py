@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS, axis_codes, check_affine, snap_directions
 
@@ -652,13 +653,65 @@ def _floats(value: Any, count: int) -> np.ndarray | None:
     return out if out.shape == (count,) and np.all(np.isfinite(out)) else None
 
 
+def _dicom_number(ds: Any, file: Path, tag: str, default: float, *, integer: bool = False,
+                  nonzero: bool = False) -> float | int:
+    """A numeric tag of ``ds`` (``default`` when absent or empty), checked: a ValueError names the
+    file and the tag for text that is not a number, a non-finite value or one float32 cannot hold."""
+    value = ds.get(tag, None)
+    if value is None or value == "":
+        return default
+    try:
+        number = float(value)
+        if integer and not number.is_integer():
+            raise ValueError
+        checks.real(number, tag)
+    except (TypeError, ValueError):
+        raise ValueError(f"volume: {file}: {tag} {value!r} is not a{'n integer' if integer else ' finite number'}") \
+            from None
+    if nonzero and number == 0:
+        raise ValueError(f"volume: {file}: {tag} is 0 (every voxel would be the intercept)")
+    return int(number) if integer else number
+
+
+def _dicom_frame_count(file: Path, ds: Any) -> int:
+    """NumberOfFrames, checked against the pixel data the file holds before anything is allocated
+    (a 930-byte file claiming 4e6 frames took minutes and gigabytes before its error), and the
+    image kind: one sample a pixel (grey), not palette indices."""
+    count = _dicom_number(ds, file, "NumberOfFrames", 1, integer=True)
+    if count < 1:
+        raise ValueError(f"volume: {file}: NumberOfFrames is {count}, expected at least 1")
+    rows, cols = (_dicom_number(ds, file, tag, -1, integer=True) for tag in ("Rows", "Columns"))
+    if rows < 0 or cols < 0:
+        raise ValueError(f"volume: {file}: pixel data without its size (no Rows or Columns)")
+    if rows < 1 or cols < 1:
+        raise ValueError(f"volume: {file}: expected Rows and Columns of at least 1, got {rows} x {cols}")
+    samples = _dicom_number(ds, file, "SamplesPerPixel", 1, integer=True)
+    photometric = str(ds.get("PhotometricInterpretation", "") or "").strip().upper()
+    if samples != 1 or photometric not in ("", "MONOCHROME1", "MONOCHROME2"):
+        raise ValueError(f"volume: {file}: PhotometricInterpretation {photometric or '(none)'} with {samples} "
+                         "sample(s) a pixel; a volume needs one grey value a voxel (MONOCHROME1 or MONOCHROME2)")
+    bits = _dicom_number(ds, file, "BitsAllocated", 16, integer=True)
+    if bits not in (1, 8, 16, 32, 64):
+        raise ValueError(f"volume: {file}: BitsAllocated {bits}, expected 1, 8, 16, 32 or 64")
+    nbytes = len(ds.PixelData)
+    syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+    if syntax is not None and getattr(syntax, "is_encapsulated", False):
+        need, what = 8 * count, f"{count} compressed frame(s) (8 bytes of item header each at least)"
+    else:
+        need, what = (rows * cols * count * bits + 7) // 8, f"{count} frame(s) of {rows} x {cols} at {bits} bits"
+    if nbytes < need:
+        raise ValueError(f"volume: {file}: the DICOM header claims {what} ({need} bytes) but the file holds {nbytes} "
+                         "bytes of pixel data; a damaged or truncated file")
+    return count
+
+
 def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
     """The 2-D frames of one DICOM dataset: classic single-frame, classic multi-frame, enhanced."""
-    slope = float(ds.get("RescaleSlope", 1.0))
-    intercept = float(ds.get("RescaleIntercept", 0.0))
+    count = _dicom_frame_count(file, ds)
+    slope = _dicom_number(ds, file, "RescaleSlope", 1.0, nonzero=True)
+    intercept = _dicom_number(ds, file, "RescaleIntercept", 0.0)
     if "DoseGridScaling" in ds and "RescaleSlope" not in ds:
-        slope = float(ds.DoseGridScaling)  # RT Dose: stored x DoseGridScaling = Gy
-    count = int(ds.get("NumberOfFrames", 1) or 1)
+        slope = _dicom_number(ds, file, "DoseGridScaling", 1.0, nonzero=True)  # RT Dose: stored x DoseGridScaling = Gy
     iop = _floats(ds.get("ImageOrientationPatient"), 6)
     ipp = _floats(ds.get("ImagePositionPatient"), 3)
     spacing = _floats(ds.get("PixelSpacing"), 2)
@@ -693,8 +746,9 @@ def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
             measures = look("PixelMeasuresSequence")
             pixel_spacing = _floats(getattr(measures, "PixelSpacing", None), 2)
             transform = look("PixelValueTransformationSequence")
-            s = float(getattr(transform, "RescaleSlope", slope) if transform is not None else slope)
-            b = float(getattr(transform, "RescaleIntercept", intercept) if transform is not None else intercept)
+            s = _dicom_number(transform, file, "RescaleSlope", slope, nonzero=True) if transform is not None \
+                else slope
+            b = _dicom_number(transform, file, "RescaleIntercept", intercept) if transform is not None else intercept
             content = look("FrameContentSequence")
             temporal = int(getattr(content, "TemporalPositionIndex", 0) or 0) if content is not None else 0
             stamp = str(getattr(content, "FrameAcquisitionDateTime", "") or "") if content is not None else ""
@@ -718,6 +772,15 @@ def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
         frames.append(_Frame(f"{file.name}[{n}]", frame_pixels(n), position, iop,
                              tuple(spacing) if spacing is not None else None, slope, intercept, (0, "", n)))
     return frames
+
+
+def _image_storage(ds: Any) -> str | None:
+    """The name of ``ds``'s SOP class when it is an image (or dose) storage class, whose files carry
+    pixel data; else None (reports, structures, plans and other files a DICOM folder may hold)."""
+    meta = getattr(ds, "file_meta", None)
+    uid = (meta.get("MediaStorageSOPClassUID") if meta is not None else None) or ds.get("SOPClassUID")
+    name = str(getattr(uid, "name", "") or "")
+    return name if ("Image Storage" in name or "Dose Storage" in name) else None
 
 
 def _dicom_series_label(datasets: list) -> str:
@@ -747,9 +810,15 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     (gantry tilt) are refused as sheared. Several images at each position (the same
     count everywhere) make a 4-D series: ``frame`` picks one (images at a position
     ordered by TemporalPositionIdentifier / TemporalPositionIndex, acquisition time,
-    instance or frame number). A missing ImageOrientationPatient or one that is not
-    two orthogonal unit vectors falls back to axial (1,0,0,0,1,0), a missing
-    ImagePositionPatient to InstanceNumber order, each with a one-line warning.
+    instance or frame number). When no image has a usable ImageOrientationPatient (missing, or
+    not two orthogonal unit vectors) the series is taken as axial (1,0,0,0,1,0) with a one-line
+    warning; when some have one and others not, it is refused, whatever the order of the files.
+    A missing ImagePositionPatient falls back to InstanceNumber order, with a warning.
+
+    Every file is checked before its pixels are read: one grey sample a pixel (MONOCHROME1/2;
+    colour and palette images are refused), numeric tags that are numbers, and pixel data at least
+    as long as Rows x Columns x NumberOfFrames claim. A file that is DICOM but cannot be read (cut
+    short, damaged) is an error naming it, never a slice left out.
 
     Values = stored * RescaleSlope + RescaleIntercept, kept int16 when slope and
     intercept are integers and the result fits, float32 otherwise.
@@ -765,11 +834,20 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     for file in sorted(p for p in folder.iterdir() if p.is_file()):
         try:
             ds = pydicom.dcmread(str(file))
-        except (InvalidDicomError, OSError, EOFError) as error:
-            problems.append(f"{file.name}: {error}")
+        except InvalidDicomError as error:  # not DICOM (no 'DICM' marker): not part of any series...
+            if file.suffix.lower() == ".dcm":  # ...unless its name says it is (cut short in its preamble?)
+                raise ValueError(f"volume: {folder}: {file.name} is not a readable DICOM file ({one_line(error)}); "
+                                 "a damaged file, or remove it from the folder") from None
+            problems.append(f"{file.name}: {one_line(error)}")
             continue
+        except Exception as error:  # noqa: BLE001 - a DICOM file cut short or damaged: never drop a slice
+            raise ValueError(f"volume: {folder}: unreadable DICOM file {file.name} "
+                             f"({one_line(error) or type(error).__name__})") from None
         if "PixelData" in ds:
             datasets.append((file, ds))
+        elif _image_storage(ds):  # pydicom reads a file cut short without a word, up to where it ends
+            raise ValueError(f"volume: {folder}: {file.name} is a {_image_storage(ds)} file without pixel data; "
+                             "a damaged or truncated file")
     if not datasets:
         detail = f" ({problems[0]})" if problems else ""
         raise ValueError(f"volume: {folder}: no DICOM slices with pixel data{detail}")
@@ -800,26 +878,38 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     except ValueError as error:
         if str(error).startswith(("volume:", "frame:")):
             raise
-        raise ValueError(f"volume: {folder}: bad DICOM series ({error})") from None
+        raise ValueError(f"volume: {folder}: bad DICOM series ({one_line(error)})") from None
     except Exception as error:  # noqa: BLE001 - pydicom decoding errors of truncated files
-        raise ValueError(f"volume: {folder}: unreadable DICOM slice ({type(error).__name__}: {error})") from None
+        raise ValueError(f"volume: {folder}: unreadable DICOM slice ({type(error).__name__}: {one_line(error)})") \
+            from None
+
+
+def _usable_orientation(iop: np.ndarray | None) -> bool:
+    """Whether ImageOrientationPatient is two orthogonal unit vectors (to 1e-3)."""
+    return iop is not None and abs(np.linalg.norm(iop[:3]) - 1) <= 1e-3 and abs(np.linalg.norm(iop[3:]) - 1) <= 1e-3 \
+        and abs(float(np.dot(iop[:3], iop[3:]))) <= 1e-3
 
 
 def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | None) -> Volume:
     """Sort DICOM images into a volume (one frame of a 4-D series) with its LPS affine."""
     axial = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
-    iop = frames[0].orientation
-    if iop is None:
-        _warn(f"volume: {folder}: no ImageOrientationPatient; assumed axial (1,0,0,0,1,0)")
+    # One rule whatever the order of the files: every image usable (then all the same), or none.
+    usable = [f for f in frames if _usable_orientation(f.orientation)]
+    if not usable:
+        seen = next((f.orientation for f in frames if f.orientation is not None), None)
+        what = "no ImageOrientationPatient" if seen is None else f"degenerate ImageOrientationPatient {seen.tolist()}"
+        _warn(f"volume: {folder}: {what}; assumed axial (1,0,0,0,1,0)")
         iop = axial
-    elif (abs(np.linalg.norm(iop[:3]) - 1) > 1e-3 or abs(np.linalg.norm(iop[3:]) - 1) > 1e-3
-          or abs(float(np.dot(iop[:3], iop[3:]))) > 1e-3):
-        _warn(f"volume: {folder}: degenerate ImageOrientationPatient {iop.tolist()}; assumed axial (1,0,0,0,1,0)")
-        iop = axial
+    elif len(usable) < len(frames):
+        bad = next(f for f in frames if not _usable_orientation(f.orientation))
+        what = "no" if bad.orientation is None else f"a degenerate {bad.orientation.tolist()}"
+        raise ValueError(f"volume: {folder}: image {bad.source} has {what} ImageOrientationPatient, image "
+                         f"{usable[0].source} has {usable[0].orientation.tolist()}; cannot stack them")
     else:
-        for f in frames[1:]:
-            if f.orientation is not None and np.abs(f.orientation - frames[0].orientation).max() > 1e-4:
-                raise ValueError(f"volume: {folder}: images {frames[0].source} and {f.source} have different "
+        iop = usable[0].orientation
+        for f in usable[1:]:
+            if np.abs(f.orientation - iop).max() > 1e-4:
+                raise ValueError(f"volume: {folder}: images {usable[0].source} and {f.source} have different "
                                  "orientations (a localizer or several stacks); cannot stack them")
     row = iop[:3] / np.linalg.norm(iop[:3])
     col = iop[3:] - np.dot(iop[3:], row) * row
@@ -860,6 +950,9 @@ def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | No
             raise ValueError(f"slice {f.source} is {pixels.shape}, expected {(rows, cols)}")
         integral = integral and float(f.slope).is_integer() and float(f.intercept).is_integer()
         data[z] = pixels.astype(np.float32) * np.float32(f.slope) + np.float32(f.intercept)
+        if not np.all(np.isfinite(data[z])):
+            raise ValueError(f"volume: {folder}: image {f.source}: RescaleSlope {f.slope:g} and RescaleIntercept "
+                             f"{f.intercept:g} take its values beyond float32 (|x| <= 3.4e38)")
     if integral and data.min() >= -32768 and data.max() <= 32767:
         data = data.astype(np.int16)
     pixel_spacing = first_frame.pixel_spacing
