@@ -1125,6 +1125,31 @@ def _integer_valued(data: np.ndarray) -> bool:
     return True
 
 
+#: Integers float32 holds exactly: -2^24..2^24 (24-bit significand).
+_SINGLE_EXACT = 1 << 24
+
+
+def _single_exact(data: np.ndarray, lo: float, hi: float) -> bool:
+    """Whether a float32 texture holds every value of ``data`` exactly (checked slab by slab where the
+    dtype alone does not tell: integers beyond 2^24, float64). A ValueError names the volume when a
+    finite value lies beyond float32's range (it would be stored as inf)."""
+    if data.dtype in (np.float16, np.float32) or (np.issubdtype(data.dtype, np.integer)
+                                                   and max(abs(lo), abs(hi)) <= _SINGLE_EXACT):
+        return True
+    exact = True
+    for z in range(0, data.shape[0], 64):
+        slab = data[z:z + 64]
+        with np.errstate(over="ignore", invalid="ignore"):
+            single = slab.astype(np.float32)
+            if np.issubdtype(slab.dtype, np.floating):
+                over = np.isfinite(slab) & ~np.isfinite(single)
+                if over.any():
+                    raise ValueError(f"volume: value {float(slab[over][0]):g} is beyond float32 (|x| <= 3.4e38), "
+                                     "the precision of the projection; rescale the data")
+            exact = exact and bool(np.all((single == slab) | np.isnan(slab)))
+    return exact
+
+
 def _nan_range(data: np.ndarray) -> tuple[float, float]:
     lo, hi = np.inf, -np.inf
     for z in range(0, data.shape[0], 64):
@@ -1165,7 +1190,10 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
     -----
     The half texture is filled slab by slab into one float16 buffer that Dr.Jit
     shares without a copy: peak memory is the source array plus 2 bytes a voxel.
-    Interpolation runs in float32 either way.
+    Interpolation runs in float32 either way. ``exact`` says whether the texture holds every
+    value exactly: float32 holds integers only up to 2^24 in magnitude (an int32 volume above
+    that is rounded) and float64 values only where they round-trip; a finite value beyond
+    float32's range is refused (ValueError), never stored as inf.
     """
     import drjit as dr
 
@@ -1208,6 +1236,7 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
         kind, nbytes = "half", buffer.nbytes
     else:
         offset = 0.0
+        exact = _single_exact(data, lo, hi)
         buffer = np.ascontiguousarray(data, dtype=np.float32).reshape(nz, ny, nx, 1)
         texture = Texture3f(TensorXf(buffer), use_accel=False, filter_mode=mode, wrap_mode=dr.WrapMode.Clamp)
         kind, nbytes = "single", buffer.nbytes
