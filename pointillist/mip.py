@@ -6,7 +6,8 @@ voxel-to-patient directions, and the named views follow the radiological convent
 radiology viewers (3D Slicer, ITK-SNAP, OsiriX/Horos): axial seen from the feet (patient's
 right on the image's left, anterior up), coronal from the front (right on the left,
 superior up), sagittal from the patient's left (anterior on the left, superior up).
-``neurological`` mirrors left and right.
+``neurological`` mirrors left and right in the views that have a left-right axis (axial, coronal and
+oblique views; a sagittal view has none and is the same in both, as in 3D Slicer and ITK-SNAP).
 
 * :func:`view_axes` gives the camera's ``(right, up, forward)`` in LPS for a named view
   (:data:`NAMED_VIEWS`) or an azimuth/elevation; :func:`view_frame` fits the
@@ -146,7 +147,8 @@ def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float
     """The displayed image's patient axes: LPS vectors and radiology letters of its edges.
 
     Returns ``{"right", "up", "forward"}`` (LPS unit vectors of the image's right, up and
-    viewing direction; ``neurological`` mirrors right) and ``"labels"``
+    viewing direction; ``neurological`` mirrors right where the image has a left-right axis,
+    so not in a sagittal view) and ``"labels"``
     (:func:`pointillist.imaging.orientation.view_labels`: letters for each edge).
 
     Examples
@@ -156,13 +158,23 @@ def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float
     {'left': 'R', 'right': 'L', 'top': 'A', 'bottom': 'P'}
     >>> patient_view("axial", neurological=True)["labels"]["left"]
     'L'
+    >>> patient_view("sagittal", neurological=True)["labels"]["left"]  # no left-right axis: as radiological
+    'A'
     """
     from pointillist.imaging.orientation import view_labels
 
     right, up, forward = view_axes(view, azimuth, elevation)
-    if neurological:
+    if neurological and _has_left_right(right):
         right = 0.0 - right  # (0.0 - 0.0 is +0.0: no "-0" in headers)
     return {"right": right, "up": up, "forward": forward, "labels": view_labels(right, up)}
+
+
+def _has_left_right(right) -> bool:
+    """Whether an image whose horizontal axis is ``right`` (LPS) has a left-right axis, the one the
+    neurological display mirrors: axial and coronal views do, a sagittal view does not (its
+    horizontal axis runs anterior-posterior). 3D Slicer and ITK-SNAP flip axial and coronal views
+    only between the two display conventions."""
+    return abs(float(right[0])) > 1e-9
 
 
 def _along_patient_axes(axes) -> bool:
@@ -211,7 +223,8 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     patient LPS and the integrator poses the volume by its directions. A view that is
     along voxel axes after that pose (any axis-aligned acquisition, whatever its voxel
     order) keeps the one-pixel-per-voxel-column ``native`` framing and the integrator's
-    column fast path. ``neurological`` mirrors the image left-right. Pass ``integrator``
+    column fast path. ``neurological`` mirrors the image left-right where it has a left-right
+    axis (not a sagittal view). Pass ``integrator``
     (a ``mip`` integrator holding the volume) to reuse its texture across views (the views
     are then framed on the volume it holds). A very small or large volume is projected in a
     rescaled frame (:func:`normalised_volume`), so that scaling the spacing uniformly does not
@@ -250,7 +263,7 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
                                        perspective))
     scene = mi.load_dict({"type": "scene"})
     image = np.array(integrator.project(scene, sensor))
-    if neurological:
+    if neurological and _has_left_right(axes[0]):
         image = np.ascontiguousarray(image[:, ::-1])
     return image, integrator
 
@@ -363,7 +376,8 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     ``view_forward`` vectors, ``image_left``/``image_right``/``image_top``/``image_bottom``
     letters and ``display`` radiological or neurological). Views are anatomical and
     radiological (see the module's description); ``neurological`` mirrors left and
-    right. ``frame`` picks a volume of a 4-D input, ``series`` a DICOM series of a folder
+    right where the view has a left-right axis (not sagittal; not with ``turntable``).
+    ``frame`` picks a volume of a 4-D input, ``series`` a DICOM series of a folder
     (:func:`~pointillist.imaging.volumes.load_volume`).
     ``turntable`` N writes N frames ``OUT_000.png ...`` turning about z (and
     ``OUT.gif`` when imageio is installed); ``workers``/``scheduler`` project the
@@ -386,6 +400,9 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
         raise UsageError(f"--perspective: expected a field of view below 180 degrees, got {perspective}")
     if turntable and native:
         raise UsageError("--turntable needs --size (oblique frames have no native size)")
+    if turntable and neurological:
+        raise UsageError("--neurological is for still views: a turntable passes through lateral views, which have "
+                         "no left-right axis to mirror, so its frames would flip there")
     import pointillist
 
     pointillist.setup()
