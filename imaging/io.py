@@ -220,13 +220,16 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
         lines = [line.removeprefix(f"{path}: ").strip() for line in captured.text.splitlines() if line.strip()]
         detail = next((line for line in lines if not line.startswith("Warning:")), None) or one_line(failure)
         raise ValueError(f"path: {path} is not a readable EXR file ({detail})") from None
-    captured.replay()
+    if parts and any(part.channels for part in parts):
+        captured.replay()
     for part in parts:
         if part.deep:
             raise ValueError(f"path: {path} is a deep EXR (part {part.name!r}: several samples a pixel); only flat "
                              "images are read: flatten it first (e.g. oiiotool --flatten)")
     if not any(part.channels for part in parts):
-        raise ValueError(f"path: {path} holds no channels")
+        # OpenEXR gives up on damaged pixel data with a warning (captured) and no parts or channels
+        lines = [line.strip() for line in captured.text.splitlines() if line.strip()]
+        raise ValueError(f"path: {path} holds no channels" + (f" ({one_line(lines[0])})" if lines else ""))
     main = next((p for p in parts if {"R", "G", "B"} <= p.channels.keys()), None) \
         or next((p for p in parts if "Y" in p.channels), None) \
         or next((p for p in parts if len(p.channels) == 1), None)

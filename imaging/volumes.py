@@ -284,6 +284,8 @@ def read_vol(path: str | os.PathLike) -> Volume:
                              f"expected {4 * count})")
         data = np.fromfile(f, dtype="<f4", count=count).reshape(nz, ny, nx)
     lo, hi = np.array(bbox[:3]), np.array(bbox[3:])
+    if not (np.all(np.isfinite(bbox)) and np.all(hi >= lo)):
+        raise ValueError(f"volume: {path}: bad .vol bounding box {list(bbox)} (expected finite, min <= max)")
     res = np.array([nx, ny, nz], dtype=np.float64)
     spacing = np.where(hi - lo > 0, (hi - lo) / res, 1.0)
     origin = lo + 0.5 * spacing
@@ -1129,25 +1131,32 @@ def _integer_valued(data: np.ndarray) -> bool:
 _SINGLE_EXACT = 1 << 24
 
 
-def _single_exact(data: np.ndarray, lo: float, hi: float) -> bool:
-    """Whether a float32 texture holds every value of ``data`` exactly (checked slab by slab where the
-    dtype alone does not tell: integers beyond 2^24, float64). A ValueError names the volume when a
-    finite value lies beyond float32's range (it would be stored as inf)."""
-    if data.dtype in (np.float16, np.float32) or (np.issubdtype(data.dtype, np.integer)
-                                                   and max(abs(lo), abs(hi)) <= _SINGLE_EXACT):
-        return True
-    exact = True
+def _check_float32_range(data: np.ndarray) -> None:
+    """ValueError when a finite value of a float64 (or wider) volume is beyond float32's range: the
+    projection computes in float32 and would store it as inf (checked slab by slab)."""
+    if not (np.issubdtype(data.dtype, np.floating) and data.dtype.itemsize > 4):
+        return
     for z in range(0, data.shape[0], 64):
         slab = data[z:z + 64]
         with np.errstate(over="ignore", invalid="ignore"):
-            single = slab.astype(np.float32)
-            if np.issubdtype(slab.dtype, np.floating):
-                over = np.isfinite(slab) & ~np.isfinite(single)
-                if over.any():
-                    raise ValueError(f"volume: value {float(slab[over][0]):g} is beyond float32 (|x| <= 3.4e38), "
-                                     "the precision of the projection; rescale the data")
-            exact = exact and bool(np.all((single == slab) | np.isnan(slab)))
-    return exact
+            over = np.isfinite(slab) & ~np.isfinite(slab.astype(np.float32))
+        if over.any():
+            raise ValueError(f"volume: value {float(slab[over][0]):g} is beyond float32 (|x| <= 3.4e38), the "
+                             "precision of the projection; rescale the data")
+
+
+def _single_exact(data: np.ndarray, lo: float, hi: float) -> bool:
+    """Whether a float32 texture holds every value of ``data`` exactly (checked slab by slab where the
+    dtype alone does not tell: integers beyond 2^24, float64)."""
+    if data.dtype in (np.float16, np.float32) or (np.issubdtype(data.dtype, np.integer)
+                                                   and max(abs(lo), abs(hi)) <= _SINGLE_EXACT):
+        return True
+    for z in range(0, data.shape[0], 64):
+        slab = data[z:z + 64]
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not np.all((slab.astype(np.float32) == slab) | np.isnan(slab)):
+                return False
+    return True
 
 
 def _nan_range(data: np.ndarray) -> tuple[float, float]:
@@ -1208,16 +1217,19 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
     if precision not in ("auto", "half", "single"):
         raise ValueError(f"precision: expected 'auto', 'half' or 'single', got {precision!r}")
     data = volume.data
+    _check_float32_range(data)
     lo, hi = _nan_range(data)
     integer = np.issubdtype(data.dtype, np.integer)
     offset = 0.0
     exact = True
+    # half storage + offset is exact when the differences fit float16's integers and the sum
+    # offset + stored is exact in float32 (where the lookup adds them): |values| <= 2^24
     if integer and np.isfinite(lo):
         offset = float(np.floor((lo + hi) / 2.0))
-        fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT
+        fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT and max(-lo, hi) <= _SINGLE_EXACT
     elif data.dtype == np.float16:
         fits = True
-    elif np.isfinite(lo) and _integer_valued(data):
+    elif np.isfinite(lo) and np.isfinite(hi) and max(-lo, hi) <= _SINGLE_EXACT and _integer_valued(data):
         offset = float(np.floor((lo + hi) / 2.0))
         fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT
     else:
