@@ -35,11 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
-__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "patient_view", "normalised_volume", "project_volume",
-           "mip_frame_task", "project_frames", "MipResult", "render_mip", "PLAIN_EXTENT", "NORMAL_EXTENT"]
+__all__ = ["NAMED_VIEWS", "PERSPECTIVE_MIN_FOV", "check_perspective", "view_axes", "view_frame", "patient_view",
+           "normalised_volume", "project_volume", "mip_frame_task", "project_frames", "MipResult", "render_mip",
+           "PLAIN_EXTENT", "NORMAL_EXTENT"]
 
 
 #: Named views: (right, up, forward) unit vectors in patient LPS (x = left, y = posterior,
@@ -116,6 +118,20 @@ def view_frame(extent, axes, *, size=(512, 512), native: bool = False, counts=No
     width, height = size
     per_pixel = max(2 * half_w / width, 2 * half_h / height)
     return (width, height), width * per_pixel / 2, height * per_pixel / 2
+
+#: The narrowest perspective field of view (degrees): the camera stands radius / sin(fov / 2) from the
+#: volume's centre, and beyond 4096 radii its float32 ray positions would be off by more than
+#: 2^-24 x 4096 = 2^-12 radius (a voxel of a 4096-voxel volume); narrower views are orthographic.
+PERSPECTIVE_MIN_FOV = 2.0 * math.degrees(math.asin(2.0**-12))
+
+
+def check_perspective(perspective: float | None) -> float | None:
+    """``perspective`` (a field of view in degrees, or None: orthographic) checked: in
+    [:data:`PERSPECTIVE_MIN_FOV`, 180); a ValueError names ``--perspective`` otherwise."""
+    if perspective is None:
+        return None
+    return checks.real(perspective, "--perspective", low=PERSPECTIVE_MIN_FOV, high=180.0, high_open=True)
+
 
 def _sensor_dict(mi, extent, axes, image_size, half_w, half_h, perspective: float | None):
     right, up, forward = axes
@@ -245,9 +261,15 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
                  "precision": precision}
         if background is not None:
             props["background"] = float(background)
-        integrator = mi.load_dict(props)
+        try:
+            integrator = mi.load_dict(props)
+        except RuntimeError as error:  # a property the integrator refused, wrapped by Mitsuba
+            from pointillist.scene import mitsuba_message
+
+            raise ValueError(mitsuba_message(error)) from None
         integrator.set_volume(normalised_volume(volume))
     volume = integrator.volume
+    perspective = check_perspective(perspective)
     axes = view_axes(view, azimuth, elevation)  # patient LPS
     if native and not _along_patient_axes(axes):
         raise ValueError("native-size: needs an axis-aligned view along the patient's axes (axial, coronal, "
@@ -396,8 +418,10 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
         raise UsageError(f"--output: folder {out.parent} does not exist")
     if native and perspective:
         raise UsageError("--native-size needs an orthographic view (drop --perspective)")
-    if perspective is not None and perspective >= 180:
-        raise UsageError(f"--perspective: expected a field of view below 180 degrees, got {perspective}")
+    try:
+        check_perspective(perspective)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     if turntable and native:
         raise UsageError("--turntable needs --size (oblique frames have no native size)")
     if turntable and neurological:
