@@ -776,6 +776,10 @@ def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
     return frames
 
 
+#: A DICOM file's 'DICM' marker ends here (after its 128-byte preamble).
+_DICOM_MARKER_END = 132
+
+
 def _image_storage(ds: Any) -> str | None:
     """The name of ``ds``'s SOP class when it is an image (or dose) storage class, whose files carry
     pixel data; else None (reports, structures, plans and other files a DICOM folder may hold)."""
@@ -837,9 +841,11 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
         try:
             ds = pydicom.dcmread(str(file))
         except InvalidDicomError as error:  # not DICOM (no 'DICM' marker): not part of any series...
-            if file.suffix.lower() == ".dcm":  # ...unless its name says it is (cut short in its preamble?)
-                raise ValueError(f"volume: {folder}: {file.name} is not a readable DICOM file ({one_line(error)}); "
-                                 "a damaged file, or remove it from the folder") from None
+            if file.suffix.lower() == ".dcm" and file.stat().st_size < _DICOM_MARKER_END:
+                # ...unless its name says it is and it ends before the marker could: cut short
+                raise ValueError(f"volume: {folder}: {file.name} ends at byte {file.stat().st_size}, before the DICOM "
+                                 f"marker (byte {_DICOM_MARKER_END}); a truncated file, or remove it from the "
+                                 "folder") from None
             problems.append(f"{file.name}: {one_line(error)}")
             continue
         except Exception as error:  # noqa: BLE001 - a DICOM file cut short or damaged: never drop a slice
