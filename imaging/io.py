@@ -228,8 +228,11 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
                              "images are read: flatten it first (e.g. oiiotool --flatten)")
     if not any(part.channels for part in parts):
         # OpenEXR gives up on damaged pixel data with a warning (captured) and no parts or channels
-        lines = [line.strip() for line in captured.text.splitlines() if line.strip()]
-        raise ValueError(f"path: {path} holds no channels" + (f" ({one_line(lines[0])})" if lines else ""))
+        lines = [line.strip().removeprefix("Warning:").strip() for line in captured.text.splitlines() if line.strip()]
+        if lines:
+            raise ValueError(f"path: {path}: its pixel data cannot be read, a damaged or truncated file "
+                             f"({one_line(lines[0])})")
+        raise ValueError(f"path: {path} holds no channels")
     main = next((p for p in parts if {"R", "G", "B"} <= p.channels.keys()), None) \
         or next((p for p in parts if "Y" in p.channels), None) \
         or next((p for p in parts if len(p.channels) == 1), None)

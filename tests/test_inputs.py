@@ -531,6 +531,21 @@ def test_exr_data_window_is_placed_in_the_display_window(tmp_path, rng):
     assert not read_exr(tmp_path / "apart.exr").image.any()
 
 
+def test_damaged_exr_pixels_say_so(tmp_path, rng):
+    """OpenEXR gives up on damaged pixel data with a warning and no parts: that was 'holds no channels'."""
+    from pointillist.imaging.io import _framed, read_exr
+
+    r = rng.random((64, 64)).astype(np.float32)
+    _exr(tmp_path / "g.exr", {"R": r, "G": r, "B": r})
+    data = (tmp_path / "g.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[:-1])
+    with pytest.raises(ValueError, match=r"cut.exr: its pixel data cannot be read, a damaged or truncated file \("):
+        read_exr(tmp_path / "cut.exr")
+    # a subsampled channel (luminance/chroma images) is refused, not stretched: the data window is 4 x 2
+    with pytest.raises(ValueError, match=r"channel 'RY' is subsampled \(2 x 1 values for a 4 x 2 data window\)"):
+        _framed(tmp_path / "yc.exr", "RY", np.zeros((1, 2), np.float32), (0, 0, 3, 1), (0, 0, 3, 1))
+
+
 def test_exr_huge_display_window_is_refused_before_allocating(tmp_path):
     from pointillist.imaging.io import read_exr
 
