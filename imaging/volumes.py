@@ -801,7 +801,8 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
                       series: str | int | None = None) -> Volume:
     """Read a DICOM series (a folder of slices, or a multi-frame file) as Hounsfield units, placed in LPS.
 
-    Files that are not DICOM or carry no pixel data are skipped. A folder with several
+    Files that are not DICOM, and DICOM files that carry no images (reports, structures,
+    plans), are skipped; an image file without its pixel data is an error. A folder with several
     series (SeriesInstanceUID) needs ``series`` (the UID, or its index in the sorted
     list the error shows). Images come from single-frame files, classic multi-frame
     files (e.g. RT Dose: ``GridFrameOffsetVector``) or enhanced multi-frame files
