@@ -37,7 +37,9 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
 
-from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, replace_non_finite, warn_non_finite
+from pointillist import checks
+from pointillist.imaging.arrays import (TensorXf, as_tensor, eager_if_shared, opaque_scalar, replace_non_finite,
+                                        warn_non_finite)
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -52,6 +54,8 @@ __all__ = [
     "hsv_from_rgb_values",
     "rgb_from_hsv_values",
 ]
+
+_FLOAT32_MAX = checks.FLOAT32_MAX
 
 #: Rec. 709 / sRGB luminance weights of linear R, G, B (ITU-R BT.709-6, item 3.3).
 REC709_LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
@@ -126,12 +130,8 @@ def _map_pixels(tensor: TensorXf, function: Callable[[Float, Float, Float], Trip
 
 
 def _white(max_value: Any) -> float:
-    """``max_value`` checked: the value of white (+inf becomes it)."""
-    if isinstance(max_value, (bool, np.bool_)) or not isinstance(max_value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"max_value: expected a number, got {type(max_value).__name__} {max_value!r}")
-    if not (np.isfinite(max_value) and max_value > 0):
-        raise ValueError(f"max_value: expected a finite number > 0, got {max_value}")
-    return float(max_value)
+    """``max_value`` checked: the value of white (+inf becomes it), > 0 and finite in float32."""
+    return checks.real(max_value, "max_value", low=0.0, low_open=True)
 
 
 def _clean_rgb(white: float, counter: list) -> Callable[[Float, Float, Float], Triple]:
@@ -288,11 +288,13 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     image : array_like or Dr.Jit tensor, (H, W, 3)
         RGB values (any units: V keeps them).
     hue : float
-        Degrees added to H (wrapped modulo 360).
+        Degrees added to H (wrapped modulo 360 in float64 first: any hue float32 holds shifts as
+        its remainder does).
     saturation : float
         >= 0, factor on S; the result is clipped to S <= 1 (0 gives grey).
     value : float
-        >= 0, factor on V (not clipped: display steps clip when writing).
+        >= 0, factor on V (not clipped: display steps clip when writing; a V beyond float32's
+        range becomes its largest value, 3.4e38, never inf).
     max_value : float
         White, which +inf becomes (NaN and -inf become 0, with one ``NonFiniteWarning``).
 
@@ -304,8 +306,10 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
 
     Raises
     ------
+    TypeError
+        If a parameter is not a number.
     ValueError
-        If a factor is negative or a value is not finite.
+        If a factor is negative or a parameter is not finite in float32 (|x| <= 3.4e38).
 
     Examples
     --------
@@ -314,26 +318,19 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     >>> np.asarray(adjust_hsv(np.array([[[1.0, 0.0, 0.0]]]), hue=120)).tolist()
     [[[0.0, 1.0, 0.0]]]
     """
-    checked = []
-    for number, name, low in ((hue, "hue", None), (saturation, "saturation", 0.0), (value, "value", 0.0)):
-        try:
-            if isinstance(number, (bool, np.bool_, str, bytes)):
-                raise TypeError
-            number = float(number)
-        except (TypeError, ValueError):
-            raise TypeError(f"{name}: expected a number, got {type(number).__name__} {number!r}") from None
-        if number != number or number in (float("inf"), float("-inf")):
-            raise ValueError(f"{name}: expected a finite number, got {number}")
-        if low is not None and number < low:
-            raise ValueError(f"{name}: expected a factor >= 0, got {number}")
-        checked.append(dr.opaque(Float, number))
+    hue = checks.real(hue, "hue")
+    saturation = checks.real(saturation, "saturation", low=0.0)
+    value = checks.real(value, "value", low=0.0)
+    # The shift is wrapped here, in float64 (exact): added in float32, a hue of 1e30 would swamp H.
+    checked = [opaque_scalar(Float, hue % 360.0), opaque_scalar(Float, saturation), opaque_scalar(Float, value)]
     shift, s_scale, v_scale = checked
     counter: list = [None]
     clean = _clean_rgb(_white(max_value), counter)
 
     def adjust(r: Float, g: Float, b: Float) -> Triple:
         h, s, v = hsv_from_rgb_values(*clean(r, g, b))
-        return rgb_from_hsv_values(h + shift, dr.minimum(s * s_scale, 1.0), v * v_scale)
+        # V at most float32's largest value: an overflow to inf would make V (1 - S) = inf * 0 = NaN
+        return rgb_from_hsv_values(h + shift, dr.minimum(s * s_scale, 1.0), dr.minimum(v * v_scale, _FLOAT32_MAX))
 
     return warn_non_finite(_map_pixels(_rgb_tensor(image), adjust), counter[0], "adjust_hsv")
 

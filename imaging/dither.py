@@ -52,7 +52,6 @@ Examples
 from __future__ import annotations
 
 import inspect
-import math
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -61,6 +60,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, UInt8, UInt32
 
+from pointillist import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, divmod_u32, eager_if_shared, is_uint8,
                                         opaque_scalar, to_uint8, uint8_array)
 from pointillist.imaging.blue_noise import void_and_cluster
@@ -153,22 +153,15 @@ class DitherError(NamedTuple):
 
 
 def _check_level(level: Any) -> float:
-    if isinstance(level, bool) or not isinstance(level, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(level):
-        raise ValueError(f"level: expected a finite number, got {level!r}")
-    return float(level)
+    return checks.real(level, "level")
 
 
 def _check_levels(levels: Any) -> int:
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or not 2 <= levels <= _MAX_LEVELS:
-        raise ValueError(f"levels: expected an integer from 2 to {_MAX_LEVELS}, got {levels!r}")
-    return int(levels)
+    return checks.integer(levels, "levels", low=2, high=_MAX_LEVELS)
 
 
 def _check_bool(value: Any, name: str) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name}: expected True or False, got {value!r}")
-    return bool(value)
+    return checks.boolean(value, name)
 
 
 def _check_template(template: Any, name: str = "template") -> np.ndarray:

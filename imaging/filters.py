@@ -22,6 +22,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, UInt8, UInt32
 
+from pointillist import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar,
                                         to_uint8, uint8_array)
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
@@ -68,19 +69,13 @@ def _check_kernel(kernel: Any) -> np.ndarray:
         if kernel not in KERNELS:
             raise ValueError(f"kernel: unknown kernel name {kernel!r}; known: {', '.join(KERNELS)}")
         return KERNELS[kernel]
-    try:
-        array = np.asarray(kernel, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"kernel: expected a 2-D array of numbers or a kernel name, "
-                        f"got {type(kernel).__name__}") from error
+    array = checks.real_array(kernel, "kernel")
     if array.ndim == 1:
         array = array[None, :]
     if array.ndim != 2 or array.size == 0:
         raise ValueError(f"kernel: expected a non-empty 2-D array, got shape {array.shape}")
     if array.shape[0] % 2 == 0 or array.shape[1] % 2 == 0:
         raise ValueError(f"kernel: expected odd height and width (a centre tap), got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError("kernel: expected finite weights")
     return array.astype(np.float32)
 
 
@@ -389,10 +384,8 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
     >>> np.asarray(zero_crossings(np.array([[1.0, -1.0, 0.0, 2.0]]))).tolist()
     [[255.0, 0.0, 0.0, 0.0]]
     """
-    if connectivity not in (4, 8) or isinstance(connectivity, bool):
-        raise ValueError(f"connectivity: expected 4 or 8, got {connectivity!r}")
-    if not isinstance(max_value, (int, float, np.integer, np.floating)) or not np.isfinite(max_value):
-        raise ValueError(f"max_value: expected a finite number, got {max_value!r}")
+    connectivity = checks.choice(connectivity, "connectivity", (4, 8))
+    max_value = checks.real(max_value, "max_value")
     tensor = as_tensor(image)
     window = Window(tensor, 1, 1)
     centre = window.tap(0, 0)
@@ -441,11 +434,8 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     >>> np.asarray(threshold(np.array([[0, 127], [128, 255]], np.uint8))).tolist()
     [[0, 0], [255, 255]]
     """
-    number = isinstance(level, (int, float, np.integer, np.floating)) and not isinstance(level, bool)
-    if not number or not np.isfinite(level):
-        raise ValueError(f"level: expected a finite number, got {level!r}")
-    if not isinstance(max_value, (int, float, np.integer, np.floating)) or not np.isfinite(max_value):
-        raise ValueError(f"max_value: expected a finite number, got {max_value!r}")
+    level = checks.real(level, "level")
+    max_value = checks.real(max_value, "max_value")
     if is_uint8(image):  # the bytes widened in the kernel, the result written as bytes
         array = uint8_array(image)
         on = to_uint8(Float(float(max_value)))[0]

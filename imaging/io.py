@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from pointillist.errors import one_line
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
@@ -175,7 +176,21 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     Raises
     ------
     ValueError
-        If the file is missing or is not a readable EXR image.
+        If the file is missing, is not a readable EXR image, is a deep image (several samples a
+        pixel: flatten it first, e.g. ``oiiotool --flatten``), has subsampled channels, or has a
+        display window beyond :data:`MAX_EXR_VALUES`.
+
+    Notes
+    -----
+    Parts: the image is the first part holding ``R``, ``G`` and ``B`` (else the first holding
+    ``Y``, else a part's single channel); its other channels are layers by their names, and the
+    channels of the other parts are layers named ``PART.CHANNEL``. Metadata is the image part's.
+
+    Windows: the image is the display window (the frame a viewer shows, as ``exrdisplay``,
+    Nuke and ``oiiotool --croptofull`` do), whatever the data window: pixels of the display
+    window outside the data window are 0 (alpha too), and data outside the display window
+    (overscan) is left out. OpenCV's ``imread`` returns the data window instead, without its
+    offset. Every part is framed by the image part's display window.
 
     Examples
     --------
@@ -195,8 +210,7 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     with _OutputCapture() as captured:
         try:
             with OpenEXR.File(str(path), separate_channels=True) as exr:
-                header = dict(exr.header())
-                channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+                parts = [_ExrPart(index, part) for index, part in enumerate(exr.parts)]
         except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
             failure = error
         else:
@@ -204,26 +218,101 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     if failure is not None:
         # OpenEXR prints its own diagnosis (captured): its first line says more than the exception.
         lines = [line.removeprefix(f"{path}: ").strip() for line in captured.text.splitlines() if line.strip()]
-        detail = next((line for line in lines if not line.startswith("Warning:")), None) or str(failure)
+        detail = next((line for line in lines if not line.startswith("Warning:")), None) or one_line(failure)
         raise ValueError(f"path: {path} is not a readable EXR file ({detail})") from None
-    captured.replay()
-    if not channels:
+    if parts and any(part.channels for part in parts):
+        captured.replay()
+    for part in parts:
+        if part.deep:
+            raise ValueError(f"path: {path} is a deep EXR (part {part.name!r}: several samples a pixel); only flat "
+                             "images are read: flatten it first (e.g. oiiotool --flatten)")
+    if not any(part.channels for part in parts):
+        # OpenEXR gives up on damaged pixel data with a warning (captured) and no parts or channels
+        lines = [line.strip().removeprefix("Warning:").strip() for line in captured.text.splitlines() if line.strip()]
+        if lines:
+            raise ValueError(f"path: {path}: its pixel data cannot be read, a damaged or truncated file "
+                             f"({one_line(lines[0])})")
         raise ValueError(f"path: {path} holds no channels")
+    main = next((p for p in parts if {"R", "G", "B"} <= p.channels.keys()), None) \
+        or next((p for p in parts if "Y" in p.channels), None) \
+        or next((p for p in parts if len(p.channels) == 1), None)
+    if main is None:
+        names = sorted(f"{p.name}.{c}" if len(parts) > 1 else c for p in parts for c in p.channels)
+        raise ValueError(f"path: {path} has no Y or RGB channels (has {names})")
+    frame = main.display
+    width, height = frame[2] - frame[0] + 1, frame[3] - frame[1] + 1
+    if width < 1 or height < 1:
+        raise ValueError(f"path: {path}: empty display window {frame} (xmin, ymin, xmax, ymax)")
+    count = width * height * sum(len(p.channels) for p in parts)
+    if count > MAX_EXR_VALUES:
+        raise ValueError(f"path: {path}: display window {width} x {height} with {count} values in all, more than "
+                         f"{MAX_EXR_VALUES} (2^31 - 1)")
+    channels: dict[str, np.ndarray] = {}
+    for part in [main] + [p for p in parts if p is not main]:
+        for name, pixels in part.channels.items():
+            key = name if part is main else f"{part.name}.{name}"
+            if key in channels:
+                raise ValueError(f"path: {path}: two channels are named {key!r} (part {part.name!r})")
+            channels[key] = _framed(path, key, pixels, part.data, frame)
     _INPUTS.add(_file_id(path))
 
     def take(*names: str) -> np.ndarray:
         return np.stack([channels.pop(n) for n in names], axis=-1)
 
-    if {"R", "G", "B"} <= channels.keys():
-        image = take("R", "G", "B", "A") if "A" in channels else take("R", "G", "B")
-    elif "Y" in channels:
+    if {"R", "G", "B"} <= main.channels.keys():
+        image = take("R", "G", "B", "A") if "A" in main.channels else take("R", "G", "B")
+    elif "Y" in main.channels:
         image = channels.pop("Y")
-    elif len(channels) == 1:
-        image = channels.pop(next(iter(channels)))
     else:
-        raise ValueError(f"path: {path} has no Y or RGB channels (has {sorted(channels)})")
-    metadata = {k: _plain(v) for k, v in header.items() if k not in _RESERVED}
+        image = channels.pop(next(iter(main.channels)))
+    metadata = {k: _plain(v) for k, v in main.header.items() if k not in _RESERVED}
     return EXRImage(np.ascontiguousarray(image), metadata, channels)
+
+
+#: The most values (pixels of the display window x channels, all parts) :func:`read_exr` makes: the
+#: imaging operations' limit (32-bit signed indices).
+MAX_EXR_VALUES = 2**31 - 1
+
+
+class _ExrPart:
+    """One part of an EXR file, read: name, header, channels (numpy, float32 unless deep), windows."""
+
+    def __init__(self, index: int, part: Any) -> None:
+        import OpenEXR
+
+        self.header = dict(part.header)
+        self.name = str(part.name() or self.header.get("name") or f"part{index}")
+        self.deep = part.type() in (OpenEXR.deepscanline, OpenEXR.deeptile)
+        raw = {name: channel.pixels for name, channel in part.channels.items()}
+        self.channels = raw if self.deep else {name: np.asarray(pixels, dtype=np.float32)
+                                               for name, pixels in raw.items()}
+        self.data = _window(self.header.get("dataWindow"))
+        self.display = _window(self.header.get("displayWindow")) or self.data
+
+
+def _window(box: Any) -> tuple[int, int, int, int] | None:
+    """An EXR box2i attribute ((xmin, ymin), (xmax, ymax)) as (xmin, ymin, xmax, ymax)."""
+    if box is None:
+        return None
+    low, high = box
+    return int(low[0]), int(low[1]), int(high[0]), int(high[1])
+
+
+def _framed(path: Path, name: str, pixels: np.ndarray, data: tuple[int, int, int, int],
+            display: tuple[int, int, int, int]) -> np.ndarray:
+    """A channel's data-window pixels placed in the display window (zeros where there is no data)."""
+    x0, y0, x1, y1 = data
+    if pixels.shape != (y1 - y0 + 1, x1 - x0 + 1):
+        raise ValueError(f"path: {path}: channel {name!r} is subsampled ({pixels.shape[1]} x {pixels.shape[0]} "
+                         f"values for a {x1 - x0 + 1} x {y1 - y0 + 1} data window); not supported")
+    if data == display:
+        return pixels
+    dx0, dy0, dx1, dy1 = display
+    out = np.zeros((dy1 - dy0 + 1, dx1 - dx0 + 1), np.float32)
+    ix0, iy0, ix1, iy1 = max(x0, dx0), max(y0, dy0), min(x1, dx1), min(y1, dy1)
+    if ix0 <= ix1 and iy0 <= iy1:
+        out[iy0 - dy0:iy1 - dy0 + 1, ix0 - dx0:ix1 - dx0 + 1] = pixels[iy0 - y0:iy1 - y0 + 1, ix0 - x0:ix1 - x0 + 1]
+    return out
 
 
 class _OutputCapture:
@@ -392,27 +481,67 @@ def write_png(path: str | os.PathLike, image: Any, *, srgb: bool = True, max_val
 
 
 def read_image(path: str | os.PathLike) -> EXRImage:
-    """Read an EXR (linear float) or an 8-bit/16-bit PNG/JPEG/TIFF (values 0..255 float32).
+    """Read an EXR (:func:`read_exr`, linear float) or another image through Pillow (PNG, JPEG, TIFF...).
 
-    Non-EXR images come back with empty metadata and no layers.
+    Non-EXR images come back with empty metadata and no layers, as float32 values:
+
+    - 8-bit images (grey, bilevel, palette, colour; CMYK, YCbCr, LAB and HSV converted to RGB by
+      Pillow): 0..255, as (H, W), (H, W, 3), or (H, W, 4) when there is alpha (a palette with
+      transparency included);
+    - 16-bit grey: value / 257, 0..255 with 16 bits of precision;
+    - 16-bit colour: 0..255 at 8-bit precision (Pillow keeps the high byte of each value);
+    - float, 32-bit integer and signed integer (TIFF) images: their values unchanged, not scaled
+      nor clipped, as OpenCV's ``imread(..., IMREAD_UNCHANGED)`` reads them.
+
+    A multi-page file (TIFF, GIF) gives its first page, as OpenCV's ``imread`` does.
+
+    Raises
+    ------
+    ValueError
+        For a missing or unreadable file, or one larger than Pillow's decompression-bomb limit
+        (twice ``PIL.Image.MAX_IMAGE_PIXELS``).
     """
     path = Path(path)
     if path.suffix.lower() == ".exr":
         return read_exr(path)
     if not path.is_file():
         raise ValueError(f"path: no such image file: {path}")
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as img:
-            mode = img.mode
-            if mode in ("I;16", "I;16B", "I"):
-                pixels = np.asarray(img, dtype=np.float32) / 257.0
-            else:
-                grey = mode in ("L", "1", "P") and mode != "P"
-                img = img.convert("RGBA" if "A" in mode else ("L" if grey else "RGB"))
-                pixels = np.asarray(img, dtype=np.float32)
-    except (UnidentifiedImageError, OSError) as error:
-        raise ValueError(f"path: {path} is not a readable image ({error})") from None
+        with warnings.catch_warnings():
+            # below twice the limit Pillow only warns (several lines); above it, it raises (caught below)
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as img:
+                pixels = _pillow_values(img)
+    except Image.DecompressionBombError as error:
+        raise ValueError(f"path: {path} is too large to read ({one_line(error)})") from None
+    except (UnidentifiedImageError, OSError, ValueError) as error:
+        raise ValueError(f"path: {path} is not a readable image ({one_line(error)})") from None
     _INPUTS.add(_file_id(path))
     return EXRImage(np.ascontiguousarray(pixels), {}, {})
+
+
+#: Pillow modes whose values are read as they are (float, 32-bit signed integer).
+_RAW_MODES = ("F", "I", "I;32", "I;32S", "I;32B", "I;32BS", "I;32L", "I;32LS")
+#: Pillow modes with an alpha channel.
+_ALPHA_MODES = ("RGBA", "RGBa", "LA", "La", "PA")
+
+
+def _pillow_values(img: Any) -> np.ndarray:
+    """The float32 values of an open Pillow image, by the rules of :func:`read_image`."""
+    mode = img.mode
+    tags = getattr(img, "tag_v2", None) or {}
+    bits = tuple(np.atleast_1d(tags.get(258, ()))) if tags else ()
+    signed = tags.get(339) in (2, (2,)) if tags else False  # TIFF SampleFormat: 2 = signed integer
+    if mode.startswith("I;16") or (mode == "I" and (img.format == "PNG" or (bits == (16,) and not signed))):
+        return np.asarray(img, dtype=np.float32) / 257.0   # 16-bit unsigned grey (older Pillow: mode I)
+    if mode in _RAW_MODES:
+        return np.asarray(img, dtype=np.float32)
+    if mode == "L" and signed:  # signed 8-bit TIFF: Pillow takes the bytes as unsigned
+        return np.asarray(img).view(np.int8).astype(np.float32)
+    alpha = mode in _ALPHA_MODES or (mode == "P" and "transparency" in img.info)
+    target = "RGBA" if alpha else ("L" if mode in ("L", "1") else "RGB")
+    return np.asarray(img.convert(target) if mode != target else img, dtype=np.float32)

@@ -54,8 +54,11 @@ def check_affine(affine: Any, *, name: str = "affine") -> tuple[np.ndarray, tupl
         raise ValueError(f"{name}: expected a finite 4x4 matrix, got shape {matrix.shape}")
     if not np.allclose(matrix[3], (0.0, 0.0, 0.0, 1.0)):
         raise ValueError(f"{name}: expected a last row 0 0 0 1, got {matrix[3].tolist()}")
-    norms = np.linalg.norm(matrix[:3, :3], axis=0)
-    if not np.all(norms > 0):
+    scale = np.abs(matrix[:3, :3]).max(axis=0)  # column norms without overflow (a spacing of 1e300)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norms = np.where(scale > 0, scale * np.linalg.norm(matrix[:3, :3] / np.where(scale > 0, scale, 1.0), axis=0),
+                         0.0)
+    if not np.all(norms > 0) or not np.all(np.isfinite(norms)):
         raise ValueError(f"{name}: a voxel axis has zero length (column norms {norms.tolist()})")
     directions = matrix[:3, :3] / norms
     error = float(np.abs(directions.T @ directions - np.eye(3)).max())

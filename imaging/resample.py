@@ -31,20 +31,23 @@ INTER_CUBIC; it aliases).
   kernel interpolates (W(0) = 1, W(1) = W(2) = 0) but can overshoot the input's
   range next to edges; ``clamp=True`` limits each 1-D pass to the range of its two
   central taps, so the result stays within the 2x2 pixels around the point.
+  ``a`` is taken in -3..0 (:data:`KEYS_A_RANGE`), where W falls from its peak W(0) = 1 without
+  going negative inside |t| < 1: outside, the kernel is no longer a smoothing interpolator, and
+  a huge ``a`` makes its weights cancel to rounding noise (``a = 1e30``) or overflow float32 to NaN.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32, UInt64
 
+from pointillist import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
-__all__ = ["INTERPOLATIONS", "KEYS_A", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
+__all__ = ["INTERPOLATIONS", "KEYS_A", "KEYS_A_RANGE", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
 
 #: The interpolation methods.
 INTERPOLATIONS = ("nearest", "bilinear", "bicubic")
@@ -56,16 +59,17 @@ KEYS_A = -0.5
 MAX_RESIZE_VALUES = 2**31 - 1
 
 
+#: The range of Keys' parameter: W is non-negative and non-increasing on [0, 1] (its peak W(0) = 1 at
+#: the centre) exactly when -3 <= a <= 0; a > 0 makes W negative inside (0, 1), a < -3 raises it above 1.
+KEYS_A_RANGE = (-3.0, 0.0)
+
+
 def _check_method(method: Any) -> str:
-    if not isinstance(method, str) or method not in INTERPOLATIONS:
-        raise ValueError(f"method: expected one of {', '.join(map(repr, INTERPOLATIONS))}, got {method!r}")
-    return method
+    return checks.choice(method, "method", INTERPOLATIONS)
 
 
 def _check_a(a: Any) -> float:
-    if isinstance(a, bool) or not isinstance(a, (int, float, np.integer, np.floating)) or not math.isfinite(a):
-        raise ValueError(f"a: expected a finite number (Keys parameter, e.g. -0.5), got {a!r}")
-    return float(a)
+    return checks.real(a, "a", low=KEYS_A_RANGE[0], high=KEYS_A_RANGE[1])
 
 
 def keys_kernel(t: Any, a: float = KEYS_A) -> np.ndarray:
@@ -139,11 +143,7 @@ def _interpolate_2d(source: Float, H: int, W: int, C: int, x: Float, y: Float, c
 
 
 def _check_options(method, a, clamp):
-    method = _check_method(method)
-    a = _check_a(a)
-    if not isinstance(clamp, (bool, np.bool_)):
-        raise TypeError(f"clamp: expected a bool, got {type(clamp).__name__}")
-    return method, a, bool(clamp)
+    return _check_method(method), _check_a(a), checks.boolean(clamp, "clamp")
 
 
 @eager_if_shared
@@ -159,7 +159,8 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
         width x height x channels at most :data:`MAX_RESIZE_VALUES` (ValueError otherwise).
     method : {"nearest", "bilinear", "bicubic"}
     a : float
-        Keys' parameter for bicubic (default -0.5; -0.75 reproduces OpenCV's INTER_CUBIC).
+        Keys' parameter for bicubic, in -3..0 (:data:`KEYS_A_RANGE`; default -0.5, -0.75
+        reproduces OpenCV's INTER_CUBIC).
     clamp : bool
         Bicubic only: clamp the overshoot (see the module docstring). Off by default.
 

@@ -36,11 +36,15 @@ Function                Domain                          Range                   
 
 "uint8 out": the float32 result rounded half to even and clipped to 0..255, as
 :func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
+
+Parameters are checked for the float32 computation (:func:`pointillist.checks.real`): every
+real parameter must be finite in float32 (``|x| <= 3.4e38``, a value > 0 must stay > 0 there),
+and so must what is derived from it: gamma's scale 1 / (a max_value), the stretch's slopes,
+(levels - 1) / max_value and max_value (levels - 1); a ValueError names the parameter.
 """
 
 from __future__ import annotations
 
-import numbers
 import sys
 from typing import Any, Callable
 
@@ -48,6 +52,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
 
+from pointillist import checks
 from pointillist.imaging.arrays import (NonFiniteWarning, TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared,
                                         is_uint8, opaque_scalar, replace_non_finite, to_uint8, uint8_array,
                                         warn_non_finite)
@@ -101,28 +106,22 @@ _HDR_MAX = 1e15
 
 # --------------------------------------------------------------------------- argument checks
 
-def _number(value: Any, name: str) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
-    value = float(value)
-    if not np.isfinite(value):
-        raise ValueError(f"{name}: expected a finite number, got {value}")
-    return value
-
-
 def _positive(value: Any, name: str) -> float:
-    value = _number(value, name)
-    if value <= 0:
-        raise ValueError(f"{name}: expected a number > 0, got {value}")
-    return value
+    """A real > 0 that float32 holds (:func:`pointillist.checks.real`)."""
+    return checks.real(value, name, low=0.0, low_open=True)
 
 
 def _levels(value: Any, name: str = "levels", high: int = 1 << 24) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name}: expected an integer, got {type(value).__name__} {value!r}")
-    if not 2 <= int(value) <= high:
-        raise ValueError(f"{name}: expected an integer in 2..{high}, got {value}")
-    return int(value)
+    return checks.integer(value, name, low=2, high=high)
+
+
+def _white(max_value: Any, levels: int) -> float:
+    """``max_value`` checked with the two scales a ``levels``-step operation derives from it:
+    (levels - 1) / max_value (value -> level) and max_value x (levels - 1), both finite in float32."""
+    max_value = _positive(max_value, "max_value")
+    checks.float32_finite((levels - 1) / max_value, "max_value", f"(levels - 1) / max_value with {levels} levels")
+    checks.float32_finite((levels - 1) * max_value, "max_value", f"max_value x (levels - 1) with {levels} levels")
+    return max_value
 
 
 # --------------------------------------------------------------------------- shared machinery
@@ -248,10 +247,13 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     >>> np.asarray(gamma(np.array([[0.0, 63.75, 255.0]]), 0.5), dtype=float).round(3).tolist()
     [[0.0, 15.938, 255.0]]
     """
-    g = _positive(gamma, "gamma")
+    # The kernel sees 1 / gamma, never gamma: beyond float32 (gamma < 3e-39 or > 3e38) the exponent
+    # rounds to inf or 0, the limits of the curve, which it handles (see `curve`).
+    g = checks.real(gamma, "gamma", low=0.0, low_open=True, float32=False)
     a = _positive(a, "a")
     max_value = _positive(max_value, "max_value")
-    scale, exponent = opaque_scalar(Float, 1.0 / (a * max_value)), opaque_scalar(Float, 1.0 / g)
+    scale = checks.float32_finite(1.0 / (a * max_value), "a", "the scale 1 / (a max_value)")
+    scale, exponent = opaque_scalar(Float, scale), opaque_scalar(Float, 1.0 / g)
     top = opaque_scalar(Float, max_value)
 
     def curve(x: Float) -> Float:
@@ -309,15 +311,15 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     [[0.0, 25.0, 127.5, 230.0, 255.0]]
     """
     max_value = _positive(max_value, "max_value")
-    r1, s1, r2, s2 = (_number(v, n) for v, n in ((r1, "r1"), (s1, "s1"), (r2, "r2"), (s2, "s2")))
-    for value, name in ((r1, "r1"), (r2, "r2"), (s1, "s1"), (s2, "s2")):
-        if not 0.0 <= value <= max_value:
-            raise ValueError(f"{name}: expected a value in 0..{max_value:g}, got {value:g}")
+    r1, s1, r2, s2 = (checks.real(v, n, low=0.0, high=max_value)
+                      for v, n in ((r1, "r1"), (s1, "s1"), (r2, "r2"), (s2, "s2")))
     if r1 > r2:
         raise ValueError(f"r1: expected r1 <= r2, got r1 = {r1:g} > r2 = {r2:g}")
-    slope1 = s1 / r1 if r1 > 0 else 0.0
-    slope2 = (s2 - s1) / (r2 - r1) if r2 > r1 else 0.0
-    slope3 = (max_value - s2) / (max_value - r2) if r2 < max_value else 0.0
+    slope1 = checks.float32_finite(s1 / r1 if r1 > 0 else 0.0, "r1", "the slope s1 / r1")
+    slope2 = checks.float32_finite((s2 - s1) / (r2 - r1) if r2 > r1 else 0.0, "r2",
+                                   "the slope (s2 - s1) / (r2 - r1)")
+    slope3 = checks.float32_finite((max_value - s2) / (max_value - r2) if r2 < max_value else 0.0, "r2",
+                                   "the slope (max_value - s2) / (max_value - r2)")
     # With r1 == r2 the middle segment is empty: its upper bound sits just below r1.
     upper = r2 if r2 > r1 else float(np.nextafter(np.float32(r1), np.float32(-np.inf)))
     k1, k2, k3 = opaque_scalar(Float, slope1), opaque_scalar(Float, slope2), opaque_scalar(Float, slope3)
@@ -382,9 +384,8 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
     [[0.0, 0.0, 0.0, 85.0, 170.0, 255.0]]
     """
     levels = _levels(levels)
-    max_value = _positive(max_value, "max_value")
-    if mode not in QUANTIZE_MODES:
-        raise ValueError(f"mode: expected one of {', '.join(map(repr, QUANTIZE_MODES))}, got {mode!r}")
+    max_value = _white(max_value, levels)
+    mode = checks.choice(mode, "mode", QUANTIZE_MODES)
     top = opaque_scalar(Float, max_value)
     last = opaque_scalar(Float, levels - 1)
     if mode == "bins":
@@ -408,17 +409,12 @@ QUANTIZE_MODES = ("nearest", "bins")
 def _table(table: Any, channels: int, eight_bit: bool = False) -> tuple[Float | UInt32, int]:
     """The checked table as float32 values, or with ``eight_bit`` as their uint8 rounding held in
     UInt32 (numpy's rint of the float32 values = :func:`~pointillist.imaging.arrays.to_uint8`, no kernel)."""
-    try:
-        values = np.asarray(table, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"table: expected an array of numbers, got {type(table).__name__}") from error
+    values = checks.real_array(table, "table")
     if values.ndim == 2 and values.shape[1] == 1:
         values = values[:, 0]
     if values.shape != (256,) and values.shape != (256, channels):
         allowed = "(256,)" + (f" or (256, {channels})" if channels > 1 else "")
         raise ValueError(f"table: expected shape {allowed}, got {values.shape}")
-    if not np.all(np.isfinite(values)):
-        raise ValueError("table: expected finite values")
     width = 1 if values.ndim == 1 else channels
     values = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
     if eight_bit:
@@ -553,7 +549,7 @@ def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.
     [2, 0, 1]
     """
     levels = _levels(levels, high=65536)
-    max_value = _positive(max_value, "max_value")
+    max_value = _white(max_value, levels)
     bins, words, tail, _, _ = _bins(image, levels, max_value)
     return np.asarray(_histogram_of(bins, words, tail, levels)).astype(np.int64)
 
@@ -647,7 +643,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     [[191, 191, 191, 255]]
     """
     levels = _levels(levels, high=65536)
-    max_value = _positive(max_value, "max_value")
+    max_value = _white(max_value, levels)
     eight_bit = is_uint8(image)
     if eight_bit:
         image = uint8_array(image)
@@ -725,7 +721,9 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
       to the image's largest luminance (``white=inf`` gives L / (1 + L)).
     - ``reinhard_extended``: the same curve on each channel; w defaults to the largest value.
     - ``hable``: Hable's filmic curve f(2 x) / f(W), f(x) = (x (A x + C B) + D E) /
-      (x (A x + B) + D F) - E / F (:data:`HABLE_CONSTANTS`; ``white`` sets W = 11.2).
+      (x (A x + B) + D F) - E / F (:data:`HABLE_CONSTANTS`; ``white`` sets W = 11.2), computed as
+      x ((F - E) A x + B (C F - E)) / (F (x (A x + B) + D F)) (the same function without the
+      cancellation of its constant terms).
     - ``aces``: Narkowicz's fit of the ACES filmic curve (:data:`ACES_CONSTANTS`).
     - ``log``: logarithmic response L_d = log(1 + L) / log(1 + w) on luminance,
       w defaults to the largest luminance.
@@ -770,9 +768,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
     """
     if not isinstance(operator, str) or operator not in TONEMAP_OPERATORS:
         raise ValueError(f"operator: expected one of {', '.join(TONEMAP_OPERATORS)}, got {operator!r}")
-    exposure = _number(exposure, "exposure")
-    if abs(exposure) > 100:
-        raise ValueError(f"exposure: expected stops in -100..100, got {exposure:g}")
+    exposure = checks.real(exposure, "exposure", low=-100.0, high=100.0)
     unknown = set(params) - set(TONEMAP_OPERATORS[operator])
     if unknown:
         allowed = ", ".join(TONEMAP_OPERATORS[operator]) or "none"
@@ -780,11 +776,7 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
                          f"(it takes: {allowed})")
     white = params.get("white")
     if white is not None:
-        if isinstance(white, (bool, np.bool_)) or not isinstance(white, numbers.Real):
-            raise TypeError(f"white: expected a number, got {type(white).__name__} {white!r}")
-        white = float(white)
-        if not white > 0:  # NaN fails too
-            raise ValueError(f"white: expected a number > 0, got {white}")
+        white = checks.real(white, "white", low=0.0, low_open=True, allow_inf=True)
 
     tensor = as_tensor(image, channels=(1, 3))
     nch = tensor.shape[2] if tensor.ndim == 3 else 1
@@ -832,10 +824,14 @@ def tonemap(image: Any, operator: str = "clip", exposure: float = 0.0, **params:
         A, B, C, D, E, F = (k[n] for n in "ABCDEF")
 
         def f(v):
-            return (v * (A * v + C * B) + D * E) / (v * (A * v + B) + D * F) - E / F
+            # Hable's f with its two terms over one denominator: the constant terms D E / (D F) and
+            # E / F cancel exactly, so small values keep their precision (the plain difference is
+            # 0 below about 1e-16 in float64 and 1e-8 in float32)
+            return v * ((F - E) * A * v + B * (C * F - E)) / (F * (v * (A * v + B) + D * F))
 
         w = white if white is not None else k["W"]
-        norm = opaque_scalar(Float, 1.0 / float(f(np.float64(min(w, _HDR_MAX)))))
+        norm = opaque_scalar(Float, checks.float32_finite(1.0 / float(f(np.float64(min(w, _HDR_MAX)))), "white",
+                                                          "hable's normalisation 1 / f(white)"))
         mapped = [f(k["exposure_bias"] * c) * norm for c in channels]
     else:  # aces
         k = ACES_CONSTANTS

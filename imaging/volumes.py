@@ -33,14 +33,18 @@ range fits); other data into float32 textures.
 
 from __future__ import annotations
 
+import gzip
 import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pointillist import checks
+from pointillist.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS, axis_codes, check_affine, snap_directions
 
 __all__ = [
@@ -280,6 +284,8 @@ def read_vol(path: str | os.PathLike) -> Volume:
                              f"expected {4 * count})")
         data = np.fromfile(f, dtype="<f4", count=count).reshape(nz, ny, nx)
     lo, hi = np.array(bbox[:3]), np.array(bbox[3:])
+    if not (np.all(np.isfinite(bbox)) and np.all(hi >= lo)):
+        raise ValueError(f"volume: {path}: bad .vol bounding box {list(bbox)} (expected finite, min <= max)")
     res = np.array([nx, ny, nz], dtype=np.float64)
     spacing = np.where(hi - lo > 0, (hi - lo) / res, 1.0)
     origin = lo + 0.5 * spacing
@@ -360,8 +366,12 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
     ``scanner-xyz`` (ACR-NEMA 2.0 / DICOM scanner coordinates; the NRRD spec does not pin
     its axes down) and ``3D-right-handed`` / ``3D-left-handed`` are taken as LPS, with a
     warning. A file with ``spacings`` only (no orientation) keeps its voxel axes as L, P, S
-    with a warning. The array is read in C order: ``data[z, y, x]`` with NRRD's first
-    (fastest) axis as x; ``space directions`` row n is axis n's step.
+    with a warning, and so does a file whose ``space directions`` are ``none`` (NRRD's word for an
+    axis without a direction in space) for two or three axes; a single ``none`` axis is completed
+    as the right-handed normal of the other two (its ``spacings`` entry long, else 1), with a
+    warning. The header's claimed data size is checked against the file's before reading. The
+    array is read in C order: ``data[z, y, x]`` with NRRD's first (fastest) axis as x; ``space
+    directions`` row n is axis n's step.
     """
     try:
         import nrrd
@@ -369,39 +379,173 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
         raise ValueError("volume: reading NRRD needs pynrrd (pip install 'pointillist[medical]')") from None
     path = Path(path)
     try:
+        header = nrrd.read_header(str(path))
+        _check_nrrd_size(path, header)
         data, header = nrrd.read(str(path), index_order="C")
-    except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, ValueError, OSError...
-        raise ValueError(f"volume: {path}: not a readable NRRD file ({error or type(error).__name__})") from None
+    except ValueError as error:
+        if str(error).startswith("volume:"):
+            raise
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
+    except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, OSError, zlib.error...
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NRRD, got {data.ndim} dimensions")
     meta = {"format": "nrrd"}
-    directions = header.get("space directions")
     space = str(header.get("space", "")).strip().lower()
-    if directions is not None:
-        directions = np.asarray(directions, dtype=np.float64)
-        if directions.shape != (3, 3) or not np.all(np.isfinite(directions)):
-            raise ValueError(f"volume: {path}: expected three 3-D 'space directions', got {directions.tolist()}")
-        signs = _NRRD_SPACES.get(space)
-        if signs is None:
-            _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
-            signs = (1, 1, 1)
-        meta["space"] = space
-        affine = np.eye(4)
-        affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
-        origin = np.asarray(header.get("space origin", (0.0, 0.0, 0.0)), dtype=np.float64)
-        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-            origin = np.zeros(3)
-        affine[:3, 3] = origin * signs
-        try:
+    origin = _nrrd_vector(header.get("space origin"))
+    directions, assumed = _nrrd_directions(header.get("space directions"), header.get("spacings"))
+    try:
+        if directions is not None:
+            if assumed:
+                _warn(f"volume: {path}: {assumed}")
+            signs = _NRRD_SPACES.get(space)
+            if signs is None:
+                _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
+                signs = (1, 1, 1)
+            meta["space"] = space
+            affine = np.eye(4)
+            affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
+            affine[:3, 3] = (origin if origin is not None else np.zeros(3)) * signs
             return Volume(np.ascontiguousarray(data), metadata=meta, affine=affine)
-        except ValueError as error:
-            raise ValueError(f"volume: {path}: {error}") from None
-    spacing = (1.0, 1.0, 1.0)
-    if header.get("spacings") is not None:
-        spacing = tuple(float(s) for s in header["spacings"])
-    _warn(f"volume: {path}: NRRD without 'space directions'; voxel axes x, y, z taken as L, P, S")
-    origin = tuple(header.get("space origin", (0.0, 0.0, 0.0)))
-    return Volume(np.ascontiguousarray(data), spacing, origin, meta)
+        spacing = (1.0, 1.0, 1.0)
+        if header.get("spacings") is not None:
+            spacing = tuple(float(s) for s in header["spacings"])
+        assumed = assumed or "NRRD without 'space directions'"
+        _warn(f"volume: {path}: {assumed}; voxel axes x, y, z taken as L, P, S")
+        return Volume(np.ascontiguousarray(data), spacing, tuple(origin) if origin is not None else (0.0, 0.0, 0.0),
+                      meta)
+    except ValueError as error:
+        raise ValueError(f"volume: {path}: {error}") from None
+
+
+#: Bytes per value of each NRRD ``type`` (every spelling the NRRD format allows).
+_NRRD_ITEMSIZE = {
+    **dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsigned char", "uint8", "uint8_t"), 1),
+    **dict.fromkeys(("short", "short int", "signed short", "signed short int", "int16", "int16_t", "ushort",
+                     "unsigned short", "unsigned short int", "uint16", "uint16_t"), 2),
+    **dict.fromkeys(("int", "signed int", "int32", "int32_t", "uint", "unsigned int", "uint32", "uint32_t",
+                     "float"), 4),
+    **dict.fromkeys(("longlong", "long long", "long long int", "signed long long", "signed long long int", "int64",
+                     "int64_t", "ulonglong", "unsigned long long", "unsigned long long int", "uint64", "uint64_t",
+                     "double"), 8),
+}
+
+
+def _check_nrrd_size(path: Path, header: dict) -> None:
+    """The claimed data size against the file's, before pynrrd allocates it (for data in the file
+    itself, raw or compressed; a detached ``data file`` is pynrrd's to check)."""
+    if header.get("data file") or header.get("datafile"):
+        return
+    sizes = [int(n) for n in np.atleast_1d(header.get("sizes", []))]
+    kind = " ".join(str(header.get("type", "")).lower().split())
+    itemsize = _NRRD_ITEMSIZE.get(kind, 1)  # an unknown or block type: pynrrd's own error follows
+    encoding = str(header.get("encoding", "raw")).strip().lower()
+    if encoding in ("txt", "text", "ascii"):
+        itemsize = 2  # a digit and a separator at least
+    if any(n < 1 for n in sizes):
+        raise ValueError(f"volume: {path}: NRRD sizes must be positive, got {sizes}")
+    _check_claimed_size(path, int(np.prod(sizes, dtype=object)) * itemsize,
+                        f"{'x'.join(map(str, sizes))} values of type {kind}",
+                        compressed=encoding in ("gzip", "gz", "bzip2", "bz2"))
+
+
+def _nrrd_vector(value: Any) -> np.ndarray | None:
+    """A finite 3-vector of a NRRD header (``space origin``), or None."""
+    if value is None:
+        return None
+    try:
+        vector = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return vector if vector.shape == (3,) and np.all(np.isfinite(vector)) else None
+
+
+def _nrrd_directions(value: Any, spacings: Any) -> tuple[np.ndarray | None, str | None]:
+    """NRRD ``space directions`` as ``(3x3 array or None, what was assumed or None)``; row n is axis n's step.
+
+    ``none`` marks an axis without a direction in space (NRRD's word for a non-spatial axis). With
+    one such axis of three, it is completed as the right-handed normal of the other two, its length
+    the axis's ``spacings`` entry (else 1); with more, or other unusable values, the orientation is
+    left out (None: the caller takes the voxel axes as L, P, S).
+    """
+    if value is None:
+        return None, None
+    try:
+        rows = [np.asarray(row, dtype=np.float64).reshape(-1) for row in value]
+    except (TypeError, ValueError):
+        rows = []
+    usable = [row.shape == (3,) and bool(np.all(np.isfinite(row))) and bool(np.any(row)) for row in rows]
+    if len(rows) == 3 and all(usable):
+        return np.array(rows), None
+    if len(rows) == 3 and sum(usable) == 2:
+        missing = usable.index(False)
+        normal = np.cross(rows[(missing + 1) % 3], rows[(missing + 2) % 3])  # (x, y, z) right-handed
+        if np.linalg.norm(normal) > 0:
+            try:
+                step = float(np.atleast_1d(np.asarray(spacings, dtype=np.float64))[missing])
+            except (TypeError, ValueError, IndexError):
+                step = float("nan")
+            length = step if np.isfinite(step) and step > 0 else 1.0
+            rows[missing] = normal / np.linalg.norm(normal) * length
+            return np.array(rows), (f"NRRD axis {missing} has no space direction ('none'); taken as the "
+                                    f"right-handed normal of the other two, {length:g} long")
+    given = ", ".join("a direction" if ok else "none" for ok in usable) or "nothing"
+    return None, f"NRRD 'space directions' give {given}"
+
+
+def _open_nifti(nibabel: Any, path: Path) -> tuple[Any, Any]:
+    """``(image, stream)``: the NIfTI image of ``path`` and, for a ``.gz`` file, the gzip stream its
+    data is read from (:func:`_drain` checks that stream's CRC once the data is read).
+
+    nibabel reads a compressed file only up to the end of the voxel data, so the gzip trailer (CRC-32
+    and length) is never checked and a damaged file gives a damaged volume without a word. Here the
+    image reads from a ``gzip.GzipFile`` this function opens, which the caller then reads to its end.
+    """
+    if not path.name.lower().endswith(".gz"):
+        return nibabel.load(str(path)), None
+    from nibabel.fileholders import FileHolder
+
+    stream = gzip.GzipFile(filename=str(path), mode="rb")
+    try:
+        head = stream.read(4)
+        stream.seek(0)
+        size = int.from_bytes(head, "little") if int.from_bytes(head, "little") in (348, 540) \
+            else int.from_bytes(head, "big")
+        kind = nibabel.Nifti2Image if size == 540 else nibabel.Nifti1Image
+        holder = FileHolder(filename=str(path), fileobj=stream)
+        return kind.from_file_map({"header": holder, "image": holder}, mmap=False), stream
+    except BaseException:
+        stream.close()
+        raise
+
+
+#: Deflate's largest compression ratio (zlib's technical details: 1032:1): a gzip file of n bytes
+#: holds at most 1032 n bytes of data, which bounds what a compressed header may claim.
+_DEFLATE_MAX_RATIO = 1032
+
+
+def _check_claimed_size(path: Path, claimed: int, what: str, *, compressed: bool) -> None:
+    """ValueError before anything is allocated when a header claims more data bytes than the file can
+    hold (its size, or deflate's largest ratio times its size for a compressed file)."""
+    size = path.stat().st_size
+    limit = size * _DEFLATE_MAX_RATIO if compressed else size
+    if claimed > limit:
+        holds = f"at most {limit} bytes once decompressed" if compressed else f"{size} bytes"
+        raise ValueError(f"volume: {path}: the header claims {what} ({claimed} bytes) but the file holds {holds}; "
+                         "a damaged or truncated file")
+
+
+def _drain(stream: Any) -> None:
+    """Read a gzip stream to its end (its CRC-32 and length are checked there), then close it."""
+    if stream is None:
+        return
+    try:
+        while stream.read(16 << 20):
+            pass
+    finally:
+        stream.close()
 
 
 def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
@@ -412,16 +556,21 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
     :data:`~pointillist.imaging.orientation.LPS_FROM_RAS`. The array is transposed from
     NIfTI's (i, j, k) to (k, j, i). Scaled data (scl_slope / scl_inter) is read as
     float32; unscaled data keeps its dtype. A 4-D image needs ``frame`` (only that
-    volume is read).
+    volume is read). A ``.nii.gz`` is read to its end, so that a damaged file (its gzip
+    CRC-32 or length does not match) is refused rather than read as other voxel values.
     """
     try:
         import nibabel
     except ImportError:
         raise ValueError("volume: reading NIfTI needs nibabel (pip install 'pointillist[medical]')") from None
     path = Path(path)
+    stream = None
     try:
-        image = nibabel.load(str(path))
+        image, stream = _open_nifti(nibabel, path)
         shape = tuple(int(n) for n in image.shape)
+        dtype = image.header.get_data_dtype()
+        _check_claimed_size(path, int(image.header.get_data_offset()) + int(np.prod(shape)) * dtype.itemsize,
+                            f"{'x'.join(map(str, shape))} voxels of {dtype}", compressed=stream is not None)
         if len(shape) == 4 and shape[3] > 1:
             index: Any = (..., _pick_frame(path, shape[3], frame))
         elif len(shape) == 4:
@@ -440,12 +589,19 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
             data = np.asanyarray(raw)
         else:
             data = np.asarray(proxy[index], dtype=np.float32)
+        _drain(stream)
     except ValueError as error:
         if str(error).startswith(("volume:", "frame:")):
             raise
-        raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
+        raise ValueError(f"volume: {path}: not a readable NIfTI file ({one_line(error)})") from None
+    except (EOFError, zlib.error, gzip.BadGzipFile) as error:
+        raise ValueError(f"volume: {path}: damaged or truncated gzip data ({one_line(error)})") from None
     except Exception as error:  # noqa: BLE001 - nibabel raises many kinds
-        raise ValueError(f"volume: {path}: not a readable NIfTI file ({error})") from None
+        raise ValueError(f"volume: {path}: not a readable NIfTI file "
+                         f"({one_line(error) or type(error).__name__})") from None
+    finally:
+        if stream is not None:
+            stream.close()
     if data.ndim != 3:
         raise ValueError(f"volume: {path}: expected a 3-D NIfTI image, got shape {data.shape}")
     header = image.header
@@ -499,13 +655,65 @@ def _floats(value: Any, count: int) -> np.ndarray | None:
     return out if out.shape == (count,) and np.all(np.isfinite(out)) else None
 
 
+def _dicom_number(ds: Any, file: Path, tag: str, default: float, *, integer: bool = False,
+                  nonzero: bool = False) -> float | int:
+    """A numeric tag of ``ds`` (``default`` when absent or empty), checked: a ValueError names the
+    file and the tag for text that is not a number, a non-finite value or one float32 cannot hold."""
+    value = ds.get(tag, None)
+    if value is None or value == "":
+        return default
+    try:
+        number = float(value)
+        if integer and not number.is_integer():
+            raise ValueError
+        checks.real(number, tag)
+    except (TypeError, ValueError):
+        raise ValueError(f"volume: {file}: {tag} {value!r} is not a{'n integer' if integer else ' finite number'}") \
+            from None
+    if nonzero and number == 0:
+        raise ValueError(f"volume: {file}: {tag} is 0 (every voxel would be the intercept)")
+    return int(number) if integer else number
+
+
+def _dicom_frame_count(file: Path, ds: Any) -> int:
+    """NumberOfFrames, checked against the pixel data the file holds before anything is allocated
+    (a 930-byte file claiming 4e6 frames took minutes and gigabytes before its error), and the
+    image kind: one sample a pixel (grey), not palette indices."""
+    count = _dicom_number(ds, file, "NumberOfFrames", 1, integer=True)
+    if count < 1:
+        raise ValueError(f"volume: {file}: NumberOfFrames is {count}, expected at least 1")
+    rows, cols = (_dicom_number(ds, file, tag, -1, integer=True) for tag in ("Rows", "Columns"))
+    if rows < 0 or cols < 0:
+        raise ValueError(f"volume: {file}: pixel data without its size (no Rows or Columns)")
+    if rows < 1 or cols < 1:
+        raise ValueError(f"volume: {file}: expected Rows and Columns of at least 1, got {rows} x {cols}")
+    samples = _dicom_number(ds, file, "SamplesPerPixel", 1, integer=True)
+    photometric = str(ds.get("PhotometricInterpretation", "") or "").strip().upper()
+    if samples != 1 or photometric not in ("", "MONOCHROME1", "MONOCHROME2"):
+        raise ValueError(f"volume: {file}: PhotometricInterpretation {photometric or '(none)'} with {samples} "
+                         "sample(s) a pixel; a volume needs one grey value a voxel (MONOCHROME1 or MONOCHROME2)")
+    bits = _dicom_number(ds, file, "BitsAllocated", 16, integer=True)
+    if bits not in (1, 8, 16, 32, 64):
+        raise ValueError(f"volume: {file}: BitsAllocated {bits}, expected 1, 8, 16, 32 or 64")
+    nbytes = len(ds.PixelData)
+    syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+    if syntax is not None and getattr(syntax, "is_encapsulated", False):
+        need, what = 8 * count, f"{count} compressed frame(s) (8 bytes of item header each at least)"
+    else:
+        need, what = (rows * cols * count * bits + 7) // 8, f"{count} frame(s) of {rows} x {cols} at {bits} bits"
+    if nbytes < need:
+        raise ValueError(f"volume: {file}: the DICOM header claims {what} ({need} bytes) but the file holds {nbytes} "
+                         "bytes of pixel data; a damaged or truncated file")
+    return count
+
+
 def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
     """The 2-D frames of one DICOM dataset: classic single-frame, classic multi-frame, enhanced."""
-    slope = float(ds.get("RescaleSlope", 1.0))
-    intercept = float(ds.get("RescaleIntercept", 0.0))
+    count = _dicom_frame_count(file, ds)
+    slope = _dicom_number(ds, file, "RescaleSlope", 1.0, nonzero=True)
+    intercept = _dicom_number(ds, file, "RescaleIntercept", 0.0)
     if "DoseGridScaling" in ds and "RescaleSlope" not in ds:
-        slope = float(ds.DoseGridScaling)  # RT Dose: stored x DoseGridScaling = Gy
-    count = int(ds.get("NumberOfFrames", 1) or 1)
+        slope = _dicom_number(ds, file, "DoseGridScaling", 1.0, nonzero=True)  # RT Dose: stored x DoseGridScaling = Gy
     iop = _floats(ds.get("ImageOrientationPatient"), 6)
     ipp = _floats(ds.get("ImagePositionPatient"), 3)
     spacing = _floats(ds.get("PixelSpacing"), 2)
@@ -540,8 +748,9 @@ def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
             measures = look("PixelMeasuresSequence")
             pixel_spacing = _floats(getattr(measures, "PixelSpacing", None), 2)
             transform = look("PixelValueTransformationSequence")
-            s = float(getattr(transform, "RescaleSlope", slope) if transform is not None else slope)
-            b = float(getattr(transform, "RescaleIntercept", intercept) if transform is not None else intercept)
+            s = _dicom_number(transform, file, "RescaleSlope", slope, nonzero=True) if transform is not None \
+                else slope
+            b = _dicom_number(transform, file, "RescaleIntercept", intercept) if transform is not None else intercept
             content = look("FrameContentSequence")
             temporal = int(getattr(content, "TemporalPositionIndex", 0) or 0) if content is not None else 0
             stamp = str(getattr(content, "FrameAcquisitionDateTime", "") or "") if content is not None else ""
@@ -567,6 +776,19 @@ def _dicom_frames(file: Path, ds: Any) -> list[_Frame]:
     return frames
 
 
+#: A DICOM file's 'DICM' marker ends here (after its 128-byte preamble).
+_DICOM_MARKER_END = 132
+
+
+def _image_storage(ds: Any) -> str | None:
+    """The name of ``ds``'s SOP class when it is an image (or dose) storage class, whose files carry
+    pixel data; else None (reports, structures, plans and other files a DICOM folder may hold)."""
+    meta = getattr(ds, "file_meta", None)
+    uid = (meta.get("MediaStorageSOPClassUID") if meta is not None else None) or ds.get("SOPClassUID")
+    name = str(getattr(uid, "name", "") or "")
+    return name if ("Image Storage" in name or "Dose Storage" in name) else None
+
+
 def _dicom_series_label(datasets: list) -> str:
     first = datasets[0][1]
     description = str(first.get("SeriesDescription", "") or "").strip()
@@ -579,7 +801,8 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
                       series: str | int | None = None) -> Volume:
     """Read a DICOM series (a folder of slices, or a multi-frame file) as Hounsfield units, placed in LPS.
 
-    Files that are not DICOM or carry no pixel data are skipped. A folder with several
+    Files that are not DICOM, and DICOM files that carry no images (reports, structures,
+    plans), are skipped; an image file without its pixel data is an error. A folder with several
     series (SeriesInstanceUID) needs ``series`` (the UID, or its index in the sorted
     list the error shows). Images come from single-frame files, classic multi-frame
     files (e.g. RT Dose: ``GridFrameOffsetVector``) or enhanced multi-frame files
@@ -594,9 +817,15 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     (gantry tilt) are refused as sheared. Several images at each position (the same
     count everywhere) make a 4-D series: ``frame`` picks one (images at a position
     ordered by TemporalPositionIdentifier / TemporalPositionIndex, acquisition time,
-    instance or frame number). A missing ImageOrientationPatient or one that is not
-    two orthogonal unit vectors falls back to axial (1,0,0,0,1,0), a missing
-    ImagePositionPatient to InstanceNumber order, each with a one-line warning.
+    instance or frame number). When no image has a usable ImageOrientationPatient (missing, or
+    not two orthogonal unit vectors) the series is taken as axial (1,0,0,0,1,0) with a one-line
+    warning; when some have one and others not, it is refused, whatever the order of the files.
+    A missing ImagePositionPatient falls back to InstanceNumber order, with a warning.
+
+    Every file is checked before its pixels are read: one grey sample a pixel (MONOCHROME1/2;
+    colour and palette images are refused), numeric tags that are numbers, and pixel data at least
+    as long as Rows x Columns x NumberOfFrames claim. A file that is DICOM but cannot be read (cut
+    short, damaged) is an error naming it, never a slice left out.
 
     Values = stored * RescaleSlope + RescaleIntercept, kept int16 when slope and
     intercept are integers and the result fits, float32 otherwise.
@@ -612,11 +841,22 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     for file in sorted(p for p in folder.iterdir() if p.is_file()):
         try:
             ds = pydicom.dcmread(str(file))
-        except (InvalidDicomError, OSError, EOFError) as error:
-            problems.append(f"{file.name}: {error}")
+        except InvalidDicomError as error:  # not DICOM (no 'DICM' marker): not part of any series...
+            if file.suffix.lower() == ".dcm" and file.stat().st_size < _DICOM_MARKER_END:
+                # ...unless its name says it is and it ends before the marker could: cut short
+                raise ValueError(f"volume: {folder}: {file.name} ends at byte {file.stat().st_size}, before the DICOM "
+                                 f"marker (byte {_DICOM_MARKER_END}); a truncated file, or remove it from the "
+                                 "folder") from None
+            problems.append(f"{file.name}: {one_line(error)}")
             continue
+        except Exception as error:  # noqa: BLE001 - a DICOM file cut short or damaged: never drop a slice
+            raise ValueError(f"volume: {folder}: unreadable DICOM file {file.name} "
+                             f"({one_line(error) or type(error).__name__})") from None
         if "PixelData" in ds:
             datasets.append((file, ds))
+        elif _image_storage(ds):  # pydicom reads a file cut short without a word, up to where it ends
+            raise ValueError(f"volume: {folder}: {file.name} is a {_image_storage(ds)} file without pixel data; "
+                             "a damaged or truncated file")
     if not datasets:
         detail = f" ({problems[0]})" if problems else ""
         raise ValueError(f"volume: {folder}: no DICOM slices with pixel data{detail}")
@@ -647,26 +887,38 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     except ValueError as error:
         if str(error).startswith(("volume:", "frame:")):
             raise
-        raise ValueError(f"volume: {folder}: bad DICOM series ({error})") from None
+        raise ValueError(f"volume: {folder}: bad DICOM series ({one_line(error)})") from None
     except Exception as error:  # noqa: BLE001 - pydicom decoding errors of truncated files
-        raise ValueError(f"volume: {folder}: unreadable DICOM slice ({type(error).__name__}: {error})") from None
+        raise ValueError(f"volume: {folder}: unreadable DICOM slice ({type(error).__name__}: {one_line(error)})") \
+            from None
+
+
+def _usable_orientation(iop: np.ndarray | None) -> bool:
+    """Whether ImageOrientationPatient is two orthogonal unit vectors (to 1e-3)."""
+    return iop is not None and abs(np.linalg.norm(iop[:3]) - 1) <= 1e-3 and abs(np.linalg.norm(iop[3:]) - 1) <= 1e-3 \
+        and abs(float(np.dot(iop[:3], iop[3:]))) <= 1e-3
 
 
 def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | None) -> Volume:
     """Sort DICOM images into a volume (one frame of a 4-D series) with its LPS affine."""
     axial = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
-    iop = frames[0].orientation
-    if iop is None:
-        _warn(f"volume: {folder}: no ImageOrientationPatient; assumed axial (1,0,0,0,1,0)")
+    # One rule whatever the order of the files: every image usable (then all the same), or none.
+    usable = [f for f in frames if _usable_orientation(f.orientation)]
+    if not usable:
+        seen = next((f.orientation for f in frames if f.orientation is not None), None)
+        what = "no ImageOrientationPatient" if seen is None else f"degenerate ImageOrientationPatient {seen.tolist()}"
+        _warn(f"volume: {folder}: {what}; assumed axial (1,0,0,0,1,0)")
         iop = axial
-    elif (abs(np.linalg.norm(iop[:3]) - 1) > 1e-3 or abs(np.linalg.norm(iop[3:]) - 1) > 1e-3
-          or abs(float(np.dot(iop[:3], iop[3:]))) > 1e-3):
-        _warn(f"volume: {folder}: degenerate ImageOrientationPatient {iop.tolist()}; assumed axial (1,0,0,0,1,0)")
-        iop = axial
+    elif len(usable) < len(frames):
+        bad = next(f for f in frames if not _usable_orientation(f.orientation))
+        what = "no" if bad.orientation is None else f"a degenerate {bad.orientation.tolist()}"
+        raise ValueError(f"volume: {folder}: image {bad.source} has {what} ImageOrientationPatient, image "
+                         f"{usable[0].source} has {usable[0].orientation.tolist()}; cannot stack them")
     else:
-        for f in frames[1:]:
-            if f.orientation is not None and np.abs(f.orientation - frames[0].orientation).max() > 1e-4:
-                raise ValueError(f"volume: {folder}: images {frames[0].source} and {f.source} have different "
+        iop = usable[0].orientation
+        for f in usable[1:]:
+            if np.abs(f.orientation - iop).max() > 1e-4:
+                raise ValueError(f"volume: {folder}: images {usable[0].source} and {f.source} have different "
                                  "orientations (a localizer or several stacks); cannot stack them")
     row = iop[:3] / np.linalg.norm(iop[:3])
     col = iop[3:] - np.dot(iop[3:], row) * row
@@ -707,6 +959,9 @@ def _stack_dicom(folder: Path, frames: list[_Frame], first: Any, frame: int | No
             raise ValueError(f"slice {f.source} is {pixels.shape}, expected {(rows, cols)}")
         integral = integral and float(f.slope).is_integer() and float(f.intercept).is_integer()
         data[z] = pixels.astype(np.float32) * np.float32(f.slope) + np.float32(f.intercept)
+        if not np.all(np.isfinite(data[z])):
+            raise ValueError(f"volume: {folder}: image {f.source}: RescaleSlope {f.slope:g} and RescaleIntercept "
+                             f"{f.intercept:g} take its values beyond float32 (|x| <= 3.4e38)")
     if integral and data.min() >= -32768 and data.max() <= 32767:
         data = data.astype(np.int16)
     pixel_spacing = first_frame.pixel_spacing
@@ -879,6 +1134,38 @@ def _integer_valued(data: np.ndarray) -> bool:
     return True
 
 
+#: Integers float32 holds exactly: -2^24..2^24 (24-bit significand).
+_SINGLE_EXACT = 1 << 24
+
+
+def _check_float32_range(data: np.ndarray) -> None:
+    """ValueError when a finite value of a float64 (or wider) volume is beyond float32's range: the
+    projection computes in float32 and would store it as inf (checked slab by slab)."""
+    if not (np.issubdtype(data.dtype, np.floating) and data.dtype.itemsize > 4):
+        return
+    for z in range(0, data.shape[0], 64):
+        slab = data[z:z + 64]
+        with np.errstate(over="ignore", invalid="ignore"):
+            over = np.isfinite(slab) & ~np.isfinite(slab.astype(np.float32))
+        if over.any():
+            raise ValueError(f"volume: value {float(slab[over][0]):g} is beyond float32 (|x| <= 3.4e38), the "
+                             "precision of the projection; rescale the data")
+
+
+def _single_exact(data: np.ndarray, lo: float, hi: float) -> bool:
+    """Whether a float32 texture holds every value of ``data`` exactly (checked slab by slab where the
+    dtype alone does not tell: integers beyond 2^24, float64)."""
+    if data.dtype in (np.float16, np.float32) or (np.issubdtype(data.dtype, np.integer)
+                                                   and max(abs(lo), abs(hi)) <= _SINGLE_EXACT):
+        return True
+    for z in range(0, data.shape[0], 64):
+        slab = data[z:z + 64]
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not np.all((slab.astype(np.float32) == slab) | np.isnan(slab)):
+                return False
+    return True
+
+
 def _nan_range(data: np.ndarray) -> tuple[float, float]:
     lo, hi = np.inf, -np.inf
     for z in range(0, data.shape[0], 64):
@@ -919,7 +1206,10 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
     -----
     The half texture is filled slab by slab into one float16 buffer that Dr.Jit
     shares without a copy: peak memory is the source array plus 2 bytes a voxel.
-    Interpolation runs in float32 either way.
+    Interpolation runs in float32 either way. ``exact`` says whether the texture holds every
+    value exactly: float32 holds integers only up to 2^24 in magnitude (an int32 volume above
+    that is rounded) and float64 values only where they round-trip; a finite value beyond
+    float32's range is refused (ValueError), never stored as inf.
     """
     import drjit as dr
 
@@ -934,16 +1224,19 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
     if precision not in ("auto", "half", "single"):
         raise ValueError(f"precision: expected 'auto', 'half' or 'single', got {precision!r}")
     data = volume.data
+    _check_float32_range(data)
     lo, hi = _nan_range(data)
     integer = np.issubdtype(data.dtype, np.integer)
     offset = 0.0
     exact = True
+    # half storage + offset is exact when the differences fit float16's integers and the sum
+    # offset + stored is exact in float32 (where the lookup adds them): |values| <= 2^24
     if integer and np.isfinite(lo):
         offset = float(np.floor((lo + hi) / 2.0))
-        fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT
+        fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT and max(-lo, hi) <= _SINGLE_EXACT
     elif data.dtype == np.float16:
         fits = True
-    elif np.isfinite(lo) and _integer_valued(data):
+    elif np.isfinite(lo) and np.isfinite(hi) and max(-lo, hi) <= _SINGLE_EXACT and _integer_valued(data):
         offset = float(np.floor((lo + hi) / 2.0))
         fits = (hi - offset) <= _HALF_EXACT and (offset - lo) <= _HALF_EXACT
     else:
@@ -962,6 +1255,7 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
         kind, nbytes = "half", buffer.nbytes
     else:
         offset = 0.0
+        exact = _single_exact(data, lo, hi)
         buffer = np.ascontiguousarray(data, dtype=np.float32).reshape(nz, ny, nx, 1)
         texture = Texture3f(TensorXf(buffer), use_accel=False, filter_mode=mode, wrap_mode=dr.WrapMode.Clamp)
         kind, nbytes = "single", buffer.nbytes

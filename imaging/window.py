@@ -12,22 +12,24 @@ Notes
 argument      domain                       range
 ============  ===========================  ======================
 ``values``    any float (NaN -> black)     ``u`` in [0, 1]
-``level``     finite                       -
-``width``     finite, > 0                  -
+``level``     finite in float32            -
+``width``     finite in float32, > 0       -
 ============  ===========================  ======================
+
+The window's ends and ``1 / width`` must be finite in float32 too (the kernel's numbers): a
+ValueError names the window otherwise (:func:`check_window`).
 """
 
 from __future__ import annotations
-
-import math
 
 import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float
 
 import pointillist.imaging  # noqa: F401  (libLLVM first)
+from pointillist import checks
 
-__all__ = ["WINDOW_PRESETS", "parse_window", "colormap_lut", "apply_window", "window_image"]
+__all__ = ["WINDOW_PRESETS", "parse_window", "check_window", "colormap_lut", "apply_window", "window_image"]
 
 #: The Dr.Jit float types :func:`apply_window` takes as they are (plain, and the AD flavour
 #: that Mitsuba's ``llvm_ad_rgb`` integrators hold), with the RGB type it returns for each.
@@ -64,9 +66,29 @@ def parse_window(text: str | tuple | None) -> tuple[float, float] | None:
             raise ValueError(f"window: expected 'level,width' (e.g. '40,400') or one of "
                              f"{', '.join(WINDOW_PRESETS)}, got {text!r}") from None
     else:
-        level, width = (float(v) for v in text)
-    if not (math.isfinite(level) and math.isfinite(width) and width > 0):
-        raise ValueError(f"window: expected a finite level and a positive width, got {level}, {width}")
+        level, width = text
+    return check_window(level, width)
+
+
+def check_window(level: float, width: float) -> tuple[float, float]:
+    """``(level, width)`` checked for the float32 kernel: finite, width > 0, and the window's low
+    end ``level - width / 2`` and ``1 / width`` finite in float32 (a ValueError names the level or
+    the width).
+
+    Examples
+    --------
+    >>> from pointillist.imaging.window import check_window
+    >>> check_window(40, 400)
+    (40.0, 400.0)
+    >>> check_window(40, 1e-300)
+    Traceback (most recent call last):
+    ...
+    ValueError: window width: expected a number > 0, got 1e-300 (0 in float32, the precision of the computation)
+    """
+    level = checks.real(level, "window level")
+    width = checks.real(width, "window width", low=0.0, low_open=True)
+    checks.float32_finite(level - width / 2.0, "window level", "the window's low end level - width / 2")
+    checks.float32_finite(1.0 / width, "window width", "the scale 1 / width")
     return level, width
 
 
@@ -92,8 +114,7 @@ def apply_window(values, level: float, width: float, lut: np.ndarray | None = No
     maps to 0 (black). ``values`` is a Dr.Jit ``Float`` (or array-like);
     returns a Dr.Jit ``Array3f`` (of the same flavour as ``values``).
     """
-    if not (math.isfinite(level) and math.isfinite(width) and width > 0):
-        raise ValueError(f"window: expected a finite level and a positive width, got {level}, {width}")
+    level, width = check_window(level, width)
     v = values if isinstance(values, _FLOATS) else Float(np.asarray(values, dtype=np.float32).ravel())
     F = type(v)
     RGB = _RGB[F]

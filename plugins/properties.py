@@ -13,6 +13,8 @@ import numbers
 import mitsuba as mi
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["texture_property", "spectrum_property", "string_property", "boolean_property", "number_property",
            "integer_property", "transform_property", "scalar_transform"]
 
@@ -108,18 +110,11 @@ def boolean_property(props, name: str, default: bool) -> bool:
 
 def number_property(props, name: str, default: float, *, minimum: float | None = None, strict: bool = False,
                     allow_inf: bool = False) -> float:
-    """A real property as a float: finite (or +-inf with ``allow_inf``), never NaN, and
-    ``>= minimum`` (``> minimum`` with ``strict``)."""
-    value = props[name] if name in props else default
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
-    value = float(value)
-    if math.isnan(value) or (math.isinf(value) and not allow_inf):
-        raise ValueError(f"{name}: expected a finite number, got {value}")
-    if minimum is not None and (value < minimum or (strict and value == minimum)):
-        relation = ">" if strict else ">="
-        raise ValueError(f"{name}: expected a number {relation} {minimum:g}, got {value:g}")
-    return value
+    """A real property as a float: finite (or +-inf with ``allow_inf``), never NaN, ``>= minimum``
+    (``> minimum`` with ``strict``), and held by float32, in which the plugins compute
+    (:func:`pointillist.checks.real`: 4e38 or a positive 1e-50 are refused)."""
+    return checks.real(props[name] if name in props else default, name, low=minimum, low_open=strict,
+                       allow_inf=allow_inf)
 
 
 def integer_property(props, name: str, default: int, minimum: int, maximum: int, meaning: str = "") -> int:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "Terminated"]
+__all__ = ["UsageError", "Terminated", "one_line"]
 
 
 class UsageError(ValueError):
@@ -12,3 +12,19 @@ class UsageError(ValueError):
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C's KeyboardInterrupt by ``pointillist``'s handler: the same clean-up
     runs (temporary files removed, clusters closed) and the command exits with status 143."""
+
+
+def one_line(text: object, limit: int = 400) -> str:
+    """A message as one line: its lines stripped and joined with ``" "``, cut to ``limit`` characters.
+
+    For the messages of libraries (nibabel, pydicom, Pillow) that a ValueError passes on: the command
+    line prints an error as one line.
+
+    Examples
+    --------
+    >>> from pointillist.errors import one_line
+    >>> one_line("Unable to decompress:\\n    gdcm - requires gdcm\\n    pylibjpeg - requires pylibjpeg\\n")
+    'Unable to decompress: gdcm - requires gdcm pylibjpeg - requires pylibjpeg'
+    """
+    line = " ".join(part.strip() for part in str(text).splitlines() if part.strip())
+    return line if len(line) <= limit else line[:limit - 3] + "..."

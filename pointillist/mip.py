@@ -6,7 +6,8 @@ voxel-to-patient directions, and the named views follow the radiological convent
 radiology viewers (3D Slicer, ITK-SNAP, OsiriX/Horos): axial seen from the feet (patient's
 right on the image's left, anterior up), coronal from the front (right on the left,
 superior up), sagittal from the patient's left (anterior on the left, superior up).
-``neurological`` mirrors left and right.
+``neurological`` mirrors left and right in the views that have a left-right axis (axial, coronal and
+oblique views; a sagittal view has none and is the same in both, as in 3D Slicer and ITK-SNAP).
 
 * :func:`view_axes` gives the camera's ``(right, up, forward)`` in LPS for a named view
   (:data:`NAMED_VIEWS`) or an azimuth/elevation; :func:`view_frame` fits the
@@ -34,11 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
-__all__ = ["NAMED_VIEWS", "view_axes", "view_frame", "patient_view", "normalised_volume", "project_volume",
-           "mip_frame_task", "project_frames", "MipResult", "render_mip", "PLAIN_EXTENT", "NORMAL_EXTENT"]
+__all__ = ["NAMED_VIEWS", "PERSPECTIVE_MIN_FOV", "check_perspective", "view_axes", "view_frame", "patient_view",
+           "normalised_volume", "project_volume", "mip_frame_task", "project_frames", "MipResult", "render_mip",
+           "PLAIN_EXTENT", "NORMAL_EXTENT"]
 
 
 #: Named views: (right, up, forward) unit vectors in patient LPS (x = left, y = posterior,
@@ -116,6 +119,20 @@ def view_frame(extent, axes, *, size=(512, 512), native: bool = False, counts=No
     per_pixel = max(2 * half_w / width, 2 * half_h / height)
     return (width, height), width * per_pixel / 2, height * per_pixel / 2
 
+#: The narrowest perspective field of view (degrees): the camera stands radius / sin(fov / 2) from the
+#: volume's centre, and beyond 4096 radii its float32 ray positions would be off by more than
+#: 2^-24 x 4096 = 2^-12 radius (a voxel of a 4096-voxel volume); narrower views are orthographic.
+PERSPECTIVE_MIN_FOV = 2.0 * math.degrees(math.asin(2.0**-12))
+
+
+def check_perspective(perspective: float | None) -> float | None:
+    """``perspective`` (a field of view in degrees, or None: orthographic) checked: in
+    [:data:`PERSPECTIVE_MIN_FOV`, 180); a ValueError names ``--perspective`` otherwise."""
+    if perspective is None:
+        return None
+    return checks.real(perspective, "--perspective", low=PERSPECTIVE_MIN_FOV, high=180.0, high_open=True)
+
+
 def _sensor_dict(mi, extent, axes, image_size, half_w, half_h, perspective: float | None):
     right, up, forward = axes
     width, height = image_size
@@ -146,7 +163,8 @@ def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float
     """The displayed image's patient axes: LPS vectors and radiology letters of its edges.
 
     Returns ``{"right", "up", "forward"}`` (LPS unit vectors of the image's right, up and
-    viewing direction; ``neurological`` mirrors right) and ``"labels"``
+    viewing direction; ``neurological`` mirrors right where the image has a left-right axis,
+    so not in a sagittal view) and ``"labels"``
     (:func:`pointillist.imaging.orientation.view_labels`: letters for each edge).
 
     Examples
@@ -156,13 +174,23 @@ def patient_view(view: str | None = None, azimuth: float = 0.0, elevation: float
     {'left': 'R', 'right': 'L', 'top': 'A', 'bottom': 'P'}
     >>> patient_view("axial", neurological=True)["labels"]["left"]
     'L'
+    >>> patient_view("sagittal", neurological=True)["labels"]["left"]  # no left-right axis: as radiological
+    'A'
     """
     from pointillist.imaging.orientation import view_labels
 
     right, up, forward = view_axes(view, azimuth, elevation)
-    if neurological:
+    if neurological and _has_left_right(right):
         right = 0.0 - right  # (0.0 - 0.0 is +0.0: no "-0" in headers)
     return {"right": right, "up": up, "forward": forward, "labels": view_labels(right, up)}
+
+
+def _has_left_right(right) -> bool:
+    """Whether an image whose horizontal axis is ``right`` (LPS) has a left-right axis, the one the
+    neurological display mirrors: axial and coronal views do, a sagittal view does not (its
+    horizontal axis runs anterior-posterior). 3D Slicer and ITK-SNAP flip axial and coronal views
+    only between the two display conventions."""
+    return abs(float(right[0])) > 1e-9
 
 
 def _along_patient_axes(axes) -> bool:
@@ -211,7 +239,8 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     patient LPS and the integrator poses the volume by its directions. A view that is
     along voxel axes after that pose (any axis-aligned acquisition, whatever its voxel
     order) keeps the one-pixel-per-voxel-column ``native`` framing and the integrator's
-    column fast path. ``neurological`` mirrors the image left-right. Pass ``integrator``
+    column fast path. ``neurological`` mirrors the image left-right where it has a left-right
+    axis (not a sagittal view). Pass ``integrator``
     (a ``mip`` integrator holding the volume) to reuse its texture across views (the views
     are then framed on the volume it holds). A very small or large volume is projected in a
     rescaled frame (:func:`normalised_volume`), so that scaling the spacing uniformly does not
@@ -232,9 +261,15 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
                  "precision": precision}
         if background is not None:
             props["background"] = float(background)
-        integrator = mi.load_dict(props)
+        try:
+            integrator = mi.load_dict(props)
+        except RuntimeError as error:  # a property the integrator refused, wrapped by Mitsuba
+            from pointillist.scene import mitsuba_message
+
+            raise ValueError(mitsuba_message(error)) from None
         integrator.set_volume(normalised_volume(volume))
     volume = integrator.volume
+    perspective = check_perspective(perspective)
     axes = view_axes(view, azimuth, elevation)  # patient LPS
     if native and not _along_patient_axes(axes):
         raise ValueError("native-size: needs an axis-aligned view along the patient's axes (axial, coronal, "
@@ -250,7 +285,7 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
                                        perspective))
     scene = mi.load_dict({"type": "scene"})
     image = np.array(integrator.project(scene, sensor))
-    if neurological:
+    if neurological and _has_left_right(axes[0]):
         image = np.ascontiguousarray(image[:, ::-1])
     return image, integrator
 
@@ -363,7 +398,8 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     ``view_forward`` vectors, ``image_left``/``image_right``/``image_top``/``image_bottom``
     letters and ``display`` radiological or neurological). Views are anatomical and
     radiological (see the module's description); ``neurological`` mirrors left and
-    right. ``frame`` picks a volume of a 4-D input, ``series`` a DICOM series of a folder
+    right where the view has a left-right axis (not sagittal; not with ``turntable``).
+    ``frame`` picks a volume of a 4-D input, ``series`` a DICOM series of a folder
     (:func:`~pointillist.imaging.volumes.load_volume`).
     ``turntable`` N writes N frames ``OUT_000.png ...`` turning about z (and
     ``OUT.gif`` when imageio is installed); ``workers``/``scheduler`` project the
@@ -382,10 +418,15 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
         raise UsageError(f"--output: folder {out.parent} does not exist")
     if native and perspective:
         raise UsageError("--native-size needs an orthographic view (drop --perspective)")
-    if perspective is not None and perspective >= 180:
-        raise UsageError(f"--perspective: expected a field of view below 180 degrees, got {perspective}")
+    try:
+        check_perspective(perspective)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     if turntable and native:
         raise UsageError("--turntable needs --size (oblique frames have no native size)")
+    if turntable and neurological:
+        raise UsageError("--neurological is for still views: a turntable passes through lateral views, which have "
+                         "no left-right axis to mirror, so its frames would flip there")
     import pointillist
 
     pointillist.setup()

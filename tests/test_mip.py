@@ -497,7 +497,8 @@ def test_radiological_convention_puts_the_marker_where_viewers_do(mi, tmp_path):
         labels = patient_view(view)["labels"]
         assert labels["left"] in ("R", "A") and labels["top"] in ("A", "S")
         mirrored, _ = project_volume(volume, view=view, native=True, interpolation="nearest", neurological=True)
-        np.testing.assert_array_equal(mirrored, image[:, ::-1])
+        # neurological mirrors left and right; a sagittal image has no left-right axis (Slicer, ITK-SNAP)
+        np.testing.assert_array_equal(mirrored, image if view == "sagittal" else image[:, ::-1])
     assert patient_view("axial", neurological=True)["labels"] == {"left": "L", "right": "R", "top": "A",
                                                                    "bottom": "P"}
     assert patient_view("sagittal")["labels"] == {"left": "A", "right": "P", "top": "S", "bottom": "I"}
@@ -635,8 +636,9 @@ def test_cli_labels_exr_patient_axes_frames_and_warnings(cli, tmp_path):
     assert result.returncode == 0, result.stderr
     meta = read_exr(tmp_path / "s.exr").metadata
     assert meta["patient_frame"] == "LPS" and meta["display"] == "neurological"
-    assert (meta["image_left"], meta["image_right"], meta["image_top"], meta["image_bottom"]) == ("P", "A", "S", "I")
-    assert meta["view_forward"] == "-1,0,0" and meta["view_right"] == "0,-1,0"
+    # a sagittal view has no left-right axis: neurological leaves it as radiological (it mirrored it)
+    assert (meta["image_left"], meta["image_right"], meta["image_top"], meta["image_bottom"]) == ("A", "P", "S", "I")
+    assert meta["view_forward"] == "-1,0,0" and meta["view_right"] == "0,1,0"
     four_d = os.path.join(data_path, "example4d.nii.gz")
     result = cli("mip", four_d, "-o", tmp_path / "f.png", "--size", "16")
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1

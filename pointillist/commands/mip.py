@@ -17,7 +17,8 @@ orientation tag falls back with a one-line warning saying what was assumed.
 Display convention of radiology viewers (radiological by default): axial seen from the
 feet (patient's right on the image's left, anterior up), coronal seen from the front
 (right on the left, superior up), sagittal seen from the patient's left (anterior on the
-left, superior up); --neurological mirrors left and right. --azimuth/--elevation in
+left, superior up); --neurological mirrors left and right (axial, coronal and oblique
+views; a sagittal view has no left-right axis and stays as it is). --azimuth/--elevation in
 degrees turn about the patient (azimuth 0, elevation 0 is coronal; azimuth turns about
 the superior axis, elevation raises the camera towards the head). PNG output is windowed
 and colour-mapped, with the patient-direction letter (R/L, A/P, S/I; two or three for an
@@ -98,7 +99,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--precision", choices=("auto", "half", "single"), default="auto",
                         help="texture storage (auto: half precision where exact)")
     parser.add_argument("--neurological", action="store_true",
-                        help="neurological display: patient's left on the image's left (default radiological)")
+                        help="neurological display: patient's left on the image's left in views with a left-right axis "
+                             "(not sagittal, not with --turntable; default radiological)")
     parser.add_argument("--no-labels", action="store_true",
                         help="no orientation letters on the PNG's edges")
     parser.add_argument("--frame", type=non_negative_int, metavar="N",
