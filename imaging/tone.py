@@ -22,17 +22,17 @@ Non-finite input (the policy of every function here): NaN becomes 0, +inf
 becomes white (``max_value``; 255 after :func:`tonemap`), -inf becomes 0, and a
 :class:`NonFiniteWarning` reports how many values were replaced.
 
-======================  ==============================  ==================================  ============
-Function                Domain                          Range                               uint8 input
-======================  ==============================  ==================================  ============
-``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)              uint8 out
-``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                      uint8 out
-``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]  uint8 out
-``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]  uint8 out
-``lut``                 rounded, clipped to 0..255       the table's values                  uint8 out
-``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]             float32 out
+======================  ==============================  ====================================  ============
+Function                Domain                          Range                                 uint8 input
+======================  ==============================  ====================================  ============
+``gamma``               [0, max_value]; < 0 -> 0        [0, max_value] (a = 1)                uint8 out
+``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                        uint8 out
+``equalize_histogram``  rounded to ``levels`` bins      ``levels`` values in [0, max_value]   uint8 out
+``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]   uint8 out
+``lut``                 rounded, clipped to 0..255      the table's values                    uint8 out
+``tonemap``             linear >= 0 (< 0 -> 0, clamped  display values [0, 255]               float32 out
                         at 1e15 after exposure)
-======================  ==============================  ==================================  ============
+======================  ==============================  ====================================  ============
 
 "uint8 out": the float32 result rounded half to even and clipped to 0..255, as
 :func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
