@@ -39,7 +39,9 @@ sys.path.insert(0, str(DOCS / "_ext"))
 # The notebooks run small (their quick mode) and write their files outside the repository's out/;
 # set POINTILLIST_NOTEBOOK_QUICK=0 before `make docs` for the full sizes.
 os.environ.setdefault("POINTILLIST_NOTEBOOK_QUICK", "1")
-os.environ.setdefault("MPLBACKEND", "Agg")
+# The notebook kernels inherit this environment: with MPLBACKEND set (Agg, as in the test suite's
+# notebook runs) `plt.show()` would draw nothing into the page; without it they use the inline backend.
+os.environ.pop("MPLBACKEND", None)
 
 import pointillist  # noqa: E402
 from pointillist_sphinx import api_map, parameter_type_prolog  # noqa: E402

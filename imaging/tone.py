@@ -3,7 +3,7 @@ look-up tables and HDR tone mapping (SPEC "Imaging definitions").
 
 Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
 (H, W, C) and returns a ``drjit.llvm.TensorXf`` (``np.asarray`` gives numpy).
-The display-domain operations work on intensities 0..``max_value`` (255 by
+The display-domain operations work on intensities 0 to ``max_value`` (255 by
 default); :func:`tonemap` turns linear HDR renders into such intensities.
 
 8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8``
@@ -215,7 +215,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
-        Intensities on 0..``max_value``. ``uint8`` input goes through a 256-entry table.
+        Intensities on 0 to ``max_value``. ``uint8`` input goes through a 256-entry table.
     gamma : float
         > 0. gamma < 1 darkens (encoding), gamma > 1 lightens (decoding), 1 is the identity.
     a : float
@@ -274,7 +274,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
-        Intensities; clipped to 0..``max_value`` first. ``uint8`` input goes through a table.
+        Intensities; clipped to 0 to ``max_value`` first. ``uint8`` input goes through a table.
     r1, r2 : float
         Input breakpoints, 0 <= r1 <= r2 <= max_value.
     s1, s2 : float

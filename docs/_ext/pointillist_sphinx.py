@@ -30,6 +30,7 @@ import pkgutil
 import sys
 import types
 import typing
+import warnings
 from pathlib import Path
 
 from docutils import nodes
@@ -326,10 +327,13 @@ def process_docstring(app, what, name, obj, options, lines):
 
 
 def process_signature(app, what, name, obj, options, signature, return_annotation):
-    """Type aliases (``dict[...]``) and plugin classes keep autodoc's signature: numpydoc would parse
-    the docstring of the aliased builtin (``dict``) and fail, or the plugin's Mitsuba-style docstring
-    and warn. Answered first, so numpydoc's handler does not run."""
-    if isinstance(obj, (types.GenericAlias, typing._GenericAlias)) or is_plugin_class(obj):
+    """Keep autodoc's own signature for a type alias (``Taps = dict[...]``, documented as data).
+
+    numpydoc answers a signature for any callable, and an alias of ``dict`` is callable; Sphinx 9
+    then writes that answer into the data entry's empty list of signatures (an IndexError, "error
+    while formatting signature"). The first answer is the one Sphinx uses, and this handler runs
+    before numpydoc's."""
+    if isinstance(obj, (types.GenericAlias, typing._GenericAlias)):
         return signature, return_annotation
     return None
 
@@ -398,6 +402,11 @@ def check_consistency(app, env):
 
 
 def setup(app):
+    # numpydoc reads every class docstring for its signature whatever the other handlers answer;
+    # the plugin classes' docstrings are Mitsuba's reStructuredText, not numpydoc (their titles
+    # read as unknown sections). Their text is rendered by PluginReference instead.
+    warnings.filterwarnings("ignore", message=r"Unknown section .* in the docstring of \w+ in .*/plugins/",
+                            category=UserWarning)
     app.add_role("monosp", monosp_role)
     app.add_directive("pluginparameters", PluginParameters)
     app.add_directive("tabs", Tabs)
@@ -406,7 +415,7 @@ def setup(app):
     app.add_directive("pointillist-cli-help", CommandLineHelp)
     app.connect("builder-inited", prepare_build, priority=100)  # before autosummary (500)
     app.connect("autodoc-process-docstring", process_docstring, priority=100)  # before numpydoc (500)
-    app.connect("autodoc-process-signature", process_signature, priority=100)  # before numpydoc
+    app.connect("autodoc-process-signature", process_signature, priority=100)  # before numpydoc (500)
     app.connect("autodoc-skip-member", skip_member)
     app.connect("env-check-consistency", check_consistency)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
