@@ -279,7 +279,7 @@ def api_map() -> dict[str, dict[str, list[str]]]:
             value = getattr(module, member, None)
             if inspect.isclass(value):
                 entries["classes"].append(member)
-            elif inspect.isfunction(value) or inspect.isbuiltin(value):
+            elif is_function(value):
                 entries["functions"].append(member)
             elif not inspect.ismodule(value):
                 entries["data"].append(member)
@@ -288,6 +288,12 @@ def api_map() -> dict[str, dict[str, list[str]]]:
                                            if not info.name.startswith("_"))
         pages[name] = entries
     return pages
+
+
+def is_function(value) -> bool:
+    """A function, a builtin, or a function behind a wrapper (``functools.lru_cache``)."""
+    return inspect.isfunction(value) or inspect.isbuiltin(value) or (
+        callable(value) and not inspect.isclass(value) and inspect.isfunction(getattr(value, "__wrapped__", None)))
 
 
 def public_names(module: types.ModuleType) -> list[str]:
@@ -312,12 +318,44 @@ def defined_in(value, module_name: str) -> str | None:
     return f"{home}.{value.__qualname__}"
 
 
+def _inherited_docstring(value, lines: list[str]) -> bool:
+    """Whether the docstring autodoc found for a constant is only that of its type (``float``'s for
+    a float without a ``#:`` comment), or none."""
+    own = "\n".join(lines).strip()
+    inherited = getattr(type(value), "__doc__", None)  # a descriptor for some types: then none
+    return not own or (isinstance(inherited, str) and own == inspect.cleandoc(inherited).strip())
+
+
+def value_summary(value) -> list[str]:
+    """Lines describing an undocumented constant by its value (short values shown as they are)."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        lines = [f"A ``{value.dtype}`` array of shape ``{value.shape}``" + (":" if value.size <= 64 else "."), ""]
+        if value.size <= 64:
+            lines += ["::", "", *("   " + row for row in np.array2string(value, separator=", ").splitlines()), ""]
+        return lines
+    if isinstance(value, dict):
+        keys = ", ".join(f"``{key!r}``" for key in list(value)[:24]) + (", ..." if len(value) > 24 else "")
+        return [f"A mapping of {len(value)} entries: {keys}.", ""]
+    text = repr(value)
+    if isinstance(value, (str, int, float, bool, tuple, frozenset)) and len(text) <= 120 and "\n" not in text:
+        return [f"Value: ``{text}``", ""]
+    if hasattr(value, "__len__"):
+        return [f"A ``{type(value).__name__}`` of {len(value)} items.", ""]
+    return [f"A ``{type(value).__name__}``.", ""]
+
+
 def process_docstring(app, what, name, obj, options, lines):
-    """Plugin classes: a pointer to their plugin section; re-exports: a pointer to their home."""
+    """Plugin classes: a pointer to their plugin section; re-exports: a pointer to their home;
+    constants without a doc comment: their value (autodoc would show their type's docstring)."""
     if what == "class" and is_plugin_class(obj):
         title = plugin_title(inspect.getdoc(obj) or "Mitsuba plugin")[0]
         plugin = sys.modules[obj.__module__].PLUGIN_NAME
         lines[:] = [f"{title}. A Mitsuba plugin; its parameters and behaviour: :ref:`plugin-{plugin}`.", ""]
+        return
+    if what in ("data", "attribute") and _inherited_docstring(obj, lines):
+        lines[:] = value_summary(obj)
         return
     module_name = name.rpartition(".")[0]
     home = defined_in(obj, module_name)
@@ -390,7 +428,7 @@ def check_consistency(app, env):
             full = f"{module_name}.{name}"
             if full not in objects:
                 LOGGER.warning("API reference: public name %s is not documented", full)
-            if (inspect.isfunction(value) or inspect.isclass(value)) and not inspect.getdoc(value):
+            if (is_function(value) or inspect.isclass(value)) and not inspect.getdoc(value):
                 LOGGER.warning("API reference: public %s %s has no docstring",
                                "class" if inspect.isclass(value) else "function", full)
     for name in sorted(plugin_classes()):
