@@ -374,3 +374,23 @@ def test_no_page_cites_a_file_outside_the_repository():
         if page.suffix in (".md", ".rst", ".py") and "_build" not in page.parts and "generated" not in page.parts:
             text = page.read_text(encoding="utf-8")
             assert "SPEC" not in text and "NOTES-mitsuba" not in text, page
+
+
+def test_an_undocumented_constant_shows_its_value_not_its_types_docstring():
+    """autodoc gives a constant without a ``#:`` comment its type's docstring (float's for 2.0)."""
+    import functools
+
+    ext = _extension()
+    float_doc = inspect.cleandoc(float.__doc__).splitlines()
+    assert ext._inherited_docstring(2.0, float_doc) and ext._inherited_docstring(2.0, [])
+    assert not ext._inherited_docstring(2.0, ["The largest aspect ratio of a sample grid."])
+    lines = ["The largest aspect ratio."]
+    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.MAX_GRID_ASPECT", 2.0, {}, lines)
+    assert lines == ["The largest aspect ratio."]
+    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.MAX_GRID_ASPECT", 2.0, {}, float_doc)
+    assert float_doc == ["Value: ``2.0``", ""]
+    assert ext.value_summary(np.eye(2, dtype=np.int64))[:4] == ["A ``int64`` array of shape ``(2, 2)``:", "", "::", ""]
+    assert ext.value_summary(np.zeros(65))[0] == "A ``float64`` array of shape ``(65,)``."
+    assert ext.value_summary({"a": 1, "b": 2})[0] == "A mapping of 2 entries: ``'a'``, ``'b'``."
+    assert ext.value_summary(tuple(range(100)))[0] == "A ``tuple`` of 100 items."
+    assert ext.is_function(functools.lru_cache(maxsize=None)(lambda: 1)) and not ext.is_function(2.0)
