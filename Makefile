@@ -1,6 +1,7 @@
 # The README's two commands: `make demo` and `make test`. Both set everything up
 # themselves on a fresh Debian/Ubuntu machine (root or sudo): system packages,
-# a working libLLVM, the virtual environment in .venv, the project.
+# a working libLLVM, the virtual environment in .venv, the project. `make docs` builds
+# the documentation site the same way.
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -10,7 +11,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 STAMP := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: demo test setup system system-test venv clean
+.PHONY: demo test docs setup system system-test venv clean
 
 demo: setup
 	@mkdir -p out
@@ -18,6 +19,12 @@ demo: setup
 
 test: setup system-test
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The documentation site, built with warnings as errors (as the test suite builds it); the
+# notebooks run in their quick mode, their outputs cached in docs/_build/.jupyter_cache.
+docs: setup
+	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html -d docs/_build/doctrees
+	@echo "documentation: open docs/_build/html/index.html"
 
 setup: system $(STAMP)
 
@@ -49,4 +56,4 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 clean:
-	rm -rf $(VENV) out build *.egg-info
+	rm -rf $(VENV) out build *.egg-info docs/_build docs/api/generated

@@ -7,17 +7,17 @@ compiled once and then reused.
 
 Notes
 -----
-=================  =========================  ================================
-Function           Domain                     Range
-=================  =========================  ================================
-``rgb_to_hsv``     RGB, any real (0..1 usual)  H [0, 360), S [0, 1] for RGB >= 0,
-                                               V = max(R, G, B) (input units)
-``hsv_to_rgb``     H any (wrapped mod 360),    RGB in V's units
+=================  ===========================  ================================
+Function           Domain                       Range
+=================  ===========================  ================================
+``rgb_to_hsv``     RGB, any real (0..1 usual)    H [0, 360), S [0, 1] for RGB >= 0,
+                                                 V = max(R, G, B) (input units)
+``hsv_to_rgb``     H any (wrapped mod 360),      RGB in V's units
                    S [0, 1], V any
-``luminance``      RGB linear, any real        Y = 0.2126 R + 0.7152 G + 0.0722 B
-``srgb_encode``    linear [0, 1]               encoded [0, 1]
-``srgb_decode``    encoded [0, 1]              linear [0, 1]
-=================  =========================  ================================
+``luminance``      RGB linear, any real          Y = 0.2126 R + 0.7152 G + 0.0722 B
+``srgb_encode``    linear [0, 1]                 encoded [0, 1]
+``srgb_decode``    encoded [0, 1]                linear [0, 1]
+=================  ===========================  ================================
 
 Non-finite input follows the rule of every imaging function (as in
 :mod:`pointillist.imaging.tone`): NaN becomes 0, +inf becomes white

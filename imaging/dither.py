@@ -35,9 +35,11 @@ Function                    Domain                          Range               
 ``halftone``                any real; clipped to 0..255     {0, 255}, shape (n H, n W[, C])    uint8 out
 ``pattern``, ``ordered``,   any real; clipped to 0..255     ``levels`` values                  uint8 out
 ``blue_noise``
-``dither``                  by method (:data:`DITHER_METHODS`), one entry for all of the above uint8 out
+``dither``                  as the method chosen            as the method chosen               uint8 out
 ``dither_error``            two images of the same shape    (total, average), float64          -
 ==========================  ==============================  =================================  ===========
+
+``dither`` runs any of the methods above by name (:data:`DITHER_METHODS`).
 
 "uint8 out": the levels rounded half to even (``k * 255 / (levels - 1)`` for ``levels > 2``).
 

@@ -9,18 +9,18 @@ buffer (Dr.Jit maps numpy memory without copying), so no tap needs a gather.
 Pixels where the window does not fit (the *border ring*, ``ry`` rows and ``rx``
 columns on each side) are then handled by the border mode:
 
-================  ==============================================  =========================  ========================
-``border``        border pixels                                   scipy.ndimage ``mode``     OpenCV ``borderType``
-================  ==============================================  =========================  ========================
-``"zero"``        set to 0 (the course's choice, the default)     (none)                     (none)
-``"crop"``        dropped: the output is ``(H - 2ry, W - 2rx)``   (none)                     (none)
-``"keep"``        keep the input's values                         (none)                     (none)
-``"clamp"``       window sees the edge pixel repeated             ``"nearest"``              ``BORDER_REPLICATE``
-``"reflect"``     window sees ``dcb|abcd|cba`` (edge repeated)    ``"reflect"``              ``BORDER_REFLECT``
-``"mirror"``      window sees ``dcb|abcd|cba`` without the edge   ``"mirror"``               ``BORDER_REFLECT_101``
-``"wrap"``        window sees the image periodically              ``"wrap"``/``"grid-wrap"`` ``BORDER_WRAP``
-``"constant"``    window sees zeros outside the image             ``"constant", cval=0``     ``BORDER_CONSTANT``
-================  ==============================================  =========================  ========================
+================  ==============================================  ===========================  ========================
+``border``        border pixels                                   scipy.ndimage ``mode``       OpenCV ``borderType``
+================  ==============================================  ===========================  ========================
+``"zero"``        set to 0 (the course's choice, the default)     (none)                       (none)
+``"crop"``        dropped: the output is ``(H - 2ry, W - 2rx)``   (none)                       (none)
+``"keep"``        keep the input's values                         (none)                       (none)
+``"clamp"``       window sees the edge pixel repeated             ``"nearest"``                ``BORDER_REPLICATE``
+``"reflect"``     window sees ``dcb|abcd|cba`` (edge repeated)    ``"reflect"``                ``BORDER_REFLECT``
+``"mirror"``      window sees ``dcb|abcd|cba`` without the edge   ``"mirror"``                 ``BORDER_REFLECT_101``
+``"wrap"``        window sees the image periodically              ``"wrap"``/``"grid-wrap"``   ``BORDER_WRAP``
+``"constant"``    window sees zeros outside the image             ``"constant", cval=0``       ``BORDER_CONSTANT``
+================  ==============================================  ===========================  ========================
 
 ``reflect`` follows scipy's ``"reflect"`` = OpenCV's ``BORDER_REFLECT`` (the
 edge pixel is repeated); ``mirror`` is the other convention. ``BORDER_WRAP`` names

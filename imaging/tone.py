@@ -3,7 +3,7 @@ look-up tables and HDR tone mapping (SPEC "Imaging definitions").
 
 Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
 (H, W, C) and returns a ``drjit.llvm.TensorXf`` (``np.asarray`` gives numpy).
-The display-domain operations work on intensities 0..``max_value`` (255 by
+The display-domain operations work on intensities 0 to ``max_value`` (255 by
 default); :func:`tonemap` turns linear HDR renders into such intensities.
 
 8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8``
@@ -22,17 +22,17 @@ Non-finite input (the policy of every function here): NaN becomes 0, +inf
 becomes white (``max_value``; 255 after :func:`tonemap`), -inf becomes 0, and a
 :class:`NonFiniteWarning` reports how many values were replaced.
 
-======================  ==============================  ==================================  ============
-Function                Domain                          Range                               uint8 input
-======================  ==============================  ==================================  ============
-``gamma``               [0, max_value]; < 0 -> 0         [0, max_value] (a = 1)              uint8 out
-``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                      uint8 out
-``equalize_histogram``  rounded to ``levels`` bins       ``levels`` values in [0, max_value]  uint8 out
-``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]  uint8 out
-``lut``                 rounded, clipped to 0..255       the table's values                  uint8 out
-``tonemap``             linear >= 0 (< 0 -> 0, clamped   display values [0, 255]             float32 out
+======================  ==============================  ====================================  ============
+Function                Domain                          Range                                 uint8 input
+======================  ==============================  ====================================  ============
+``gamma``               [0, max_value]; < 0 -> 0        [0, max_value] (a = 1)                uint8 out
+``contrast_stretch``    clipped to [0, max_value]       [0, max_value]                        uint8 out
+``equalize_histogram``  rounded to ``levels`` bins      ``levels`` values in [0, max_value]   uint8 out
+``quantize``            clipped to [0, max_value]       ``levels`` values in [0, max_value]   uint8 out
+``lut``                 rounded, clipped to 0..255      the table's values                    uint8 out
+``tonemap``             linear >= 0 (< 0 -> 0, clamped  display values [0, 255]               float32 out
                         at 1e15 after exposure)
-======================  ==============================  ==================================  ============
+======================  ==============================  ====================================  ============
 
 "uint8 out": the float32 result rounded half to even and clipped to 0..255, as
 :func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
@@ -214,7 +214,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
-        Intensities on 0..``max_value``. ``uint8`` input goes through a 256-entry table.
+        Intensities on 0 to ``max_value``. ``uint8`` input goes through a 256-entry table.
     gamma : float
         > 0. gamma < 1 darkens (encoding), gamma > 1 lightens (decoding), 1 is the identity.
     a : float
@@ -276,7 +276,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
-        Intensities; clipped to 0..``max_value`` first. ``uint8`` input goes through a table.
+        Intensities; clipped to 0 to ``max_value`` first. ``uint8`` input goes through a table.
     r1, r2 : float
         Input breakpoints, 0 <= r1 <= r2 <= max_value.
     s1, s2 : float

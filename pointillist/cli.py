@@ -40,6 +40,7 @@ def _commands():
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``pointillist`` argument parser, with one sub-command per module of :mod:`pointillist.commands`."""
     parser = _Parser(prog="pointillist", description=(
         "Render Mitsuba scenes with pointillist's Python plugins, compare sampling patterns, "
         "post-process renders and project volumes."))

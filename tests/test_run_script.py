@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_run_rejects_an_unknown_target_with_status_2_and_usage():
     done = subprocess.run([str(ROOT / "run"), "deploy"], capture_output=True, text=True)
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == ["usage: ./run demo|test|setup|clean [MAKE_VARIABLE=value ...]"]
+    assert done.stderr.strip().splitlines() == ["usage: ./run demo|test|docs|setup|clean [MAKE_VARIABLE=value ...]"]
     assert done.stdout == ""
 
 
@@ -27,3 +27,10 @@ def test_run_passes_the_target_to_make(tmp_path):
                           cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "pointillist render scenes/default.xml -o out/default.exr --png" in done.stdout
+
+
+def test_run_docs_builds_the_site_strictly_and_says_where_it_is(tmp_path):
+    done = subprocess.run([str(ROOT / "run"), "docs", "--dry-run"], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert ".venv/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html" in done.stdout
+    assert "docs/_build/html/index.html" in done.stdout

@@ -4,7 +4,7 @@ Renders SCENE with each sampler at each sample count (and seed), measures each
 render's wall time (JIT compilation reported apart) and its RMSE, relative MSE and
 FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
 (table, fitted slopes, equal-time and equal-error rankings), DIR/error_vs_time.png,
-DIR/error_vs_spp.png, the renders (DIR/renders/*.exr) and DIR/report.html, a
+DIR/error_vs_spp.png, the renders (EXR files in DIR/renders/) and DIR/report.html, a
 self-contained page (open it from disk in a browser) with the table, interactive
 plots and the renders and error maps side by side. Finished renders are kept:
 running the same command again resumes an interrupted sweep.
@@ -37,6 +37,7 @@ def spp_list(text: str) -> list[int]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``pointillist compare`` to ``parser``."""
     from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP  # (cheap: no Mitsuba, no Dask)
 
     parser.add_argument("scene", help="Mitsuba scene XML file")
@@ -73,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``pointillist compare`` with the parsed ``args``; returns the exit status."""
     from pointillist.compare import compare_scene
     from pointillist.scene import parse_defines
 

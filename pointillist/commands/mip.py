@@ -73,6 +73,7 @@ def _spacing(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``pointillist mip`` to ``parser``."""
     parser.add_argument("volume", help="volume file (.vol, .npy, .nrrd, .nii[.gz]) or DICOM series folder")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
@@ -119,6 +120,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``pointillist mip`` with the parsed ``args``; returns the exit status."""
     from pointillist.mip import render_mip
 
     result = render_mip(args.volume, args.output, view=args.view, azimuth=args.azimuth, elevation=args.elevation,

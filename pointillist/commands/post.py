@@ -21,6 +21,7 @@ HELP = "tone-map, filter and dither a render (steps run in order)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``pointillist post`` to ``parser``."""
     parser.add_argument("input", nargs="?", help="input image: EXR render, or PNG/JPEG/TIFF")
     parser.add_argument("-o", "--output", help="output .png or .exr (required unless --list-steps)")
     parser.add_argument("--steps", default="", metavar="STEPS",
@@ -39,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``pointillist post`` with the parsed ``args``; returns the exit status."""
     from pointillist.post import post_process, step_list
 
     if args.list_steps:

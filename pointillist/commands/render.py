@@ -16,6 +16,7 @@ HELP = "render a scene XML to EXR (+ PNG preview)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of ``pointillist render`` to ``parser``."""
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("-o", "--output", help="output EXR (default: out/<scene name>.exr)")
     parser.add_argument("--spp", type=positive_int, help="samples per pixel (default: the scene's)")
@@ -64,6 +65,7 @@ def tiles_arg(text: str) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``pointillist render`` with the parsed ``args``; returns the exit status."""
     from pointillist.render import render_file
     from pointillist.scene import parse_defines
 
