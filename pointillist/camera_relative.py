@@ -1,0 +1,435 @@
+"""Camera-relative rendering: a parsed scene's positions re-expressed relative to the rendered sensor.
+
+Mitsuba 3.9.1 builds every shape, light and camera in float32 world coordinates: 1e4 from the
+origin they are 9.8e-4 apart, 1e6 from it 0.0625, so edges, contacts and ray offsets move by that
+much wherever a scene sits far from the origin (CAD, GIS, city and planetary models). pbrt-v4
+renders in a camera-centred space for this reason. :func:`make_camera_relative` does the same
+between parsing a scene and instantiating it (:mod:`pointillist.scene`): every position the scene
+states (transforms, ``lookat``, sphere centres, cylinder end points, light and sensor positions,
+volume boxes) is composed in float64 with a translation by minus the rendered sensor's position,
+then handed to Mitsuba, which rounds the now small numbers to float32. The whole scene moves
+rigidly, so the image is the same up to rounding, which is now that of coordinates near the
+camera.
+
+What moves (the nodes of the parsed scene reachable from its root, outside shape groups):
+
+- ``to_world`` of shapes, instances, sensors, spot and projector lights, volumes (``gridvolume``,
+  wherever they are used: media and volume textures look them up at world positions) and the
+  ``mip`` integrator, composed on the left with the translation (and added where the plugin reads
+  one but the scene gives none, such as a mesh file whose vertices are stored in world
+  coordinates); any other plugin's ``to_world`` when the scene states one;
+- points: sphere ``center``, cylinder ``p0``/``p1``, point light ``position``, ``radiancemeter``
+  ``origin``, ``distant`` sensor ``target``. Where a sphere or cylinder states both a point and a
+  ``to_world``, the point is folded into the transform in float64.
+
+What does not: directions (``directional`` and ``distant`` directions, ``envmap``, ``constant``,
+``sunsky`` rotations: infinitely far, they have no position), the children of a ``shapegroup``
+(they are in the group's own space; the ``instance`` moves), area lights and irradiance meters
+(they are attached to a shape, which moves), texture ``to_uv``. Vertices stored inside a mesh file
+(PLY, OBJ, serialized) are float32 already: the translation moves them exactly (the offset is
+rounded to float32, and a float32 vertex near it minus it is exact), but the rounding the file
+holds stays.
+
+The origin is the position of the sensor that is rendered (index ``sensor`` in Mitsuba's order of
+the scene's sensors; ``pointillist render`` renders the first). The other sensors move with the
+scene: each renders the same image as before, with coordinates relative to the first. A sensor
+without a position (``distant``, ``irradiancemeter``) leaves the scene where it is.
+
+When (:func:`recentre_rule`): a scene moves only when that shrinks its coordinates, i.e. when the
+rendered sensor is at least :data:`GAIN` times farther from the world origin than from the median
+of the positions the scene states (shapes, lights, volumes). A scene near the origin, or a camera
+far away looking at content near the origin (where moving would make the content's coordinates
+large instead), is left exactly as written. A scene that states no position but the sensor's (only
+mesh files without ``to_world``, whose vertices are unknown before loading) moves when the sensor
+is farther than :data:`FAR` from the origin.
+
+Mitsuba's ``aov`` integrator reports ``position`` in the rendered (camera-relative) space: add
+``origin_offset`` (:func:`offset_text`, the EXR header) to get world positions where a ray hit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GAIN", "FAR", "Recentring", "recentre_rule", "sensor_positions", "stated_positions",
+           "make_camera_relative", "offset_text"]
+
+#: A scene moves when the rendered sensor is at least GAIN times farther from the world origin
+#: than from the median of the scene's stated positions (it shrinks the coordinates by that much).
+GAIN = 2.0
+
+#: Without stated positions besides the sensor's, the scene moves when the sensor is farther than
+#: this from the origin (float32 coordinates there are 6.1e-5 apart).
+FAR = 1e3
+
+#: Plugins whose ``to_world`` is a rotation of something infinitely far (translation unused).
+_INFINITE = frozenset({"directional", "envmap", "constant", "sunsky", "timed_sunsky", "distant"})
+#: Plugins attached to a shape (the shape moves; they refuse a ``to_world`` of their own).
+_ATTACHED = frozenset({"area", "directionalarea", "irradiancemeter"})
+#: Containers: ``merge`` (made by the parser) holds the scene's objects; a ``shapegroup``'s
+#: children are in its own space.
+_CONTAINERS = frozenset({"merge", "shapegroup"})
+#: Shapes Mitsuba 3.9.1 builds as meshes (the ``merge`` container lists them after other objects).
+_MESHES = frozenset({"obj", "ply", "serialized", "cube", "rectangle", "ellipsoidsmesh"})
+#: Shapes whose geometry comes from a file (or a tensor): their position is unknown before loading.
+_FILE_SHAPES = frozenset({"obj", "ply", "serialized", "bsplinecurve", "linearcurve", "ellipsoids",
+                          "ellipsoidsmesh", "sdfgrid"})
+#: Shapes given as a tensor (``data``/``centers``) refuse a ``to_world``.
+_TENSOR_PROPERTIES = ("data", "centers")
+
+
+@dataclass(frozen=True)
+class Recentring:
+    """What :func:`make_camera_relative` did to a parsed scene.
+
+    ``offset``: the world position subtracted from every position (float64 values that are
+    float32-representable; zeros when the scene was left as written); ``sensor``: the rendered
+    sensor's position as stated (``None`` when it has none); ``reason``: one line saying why the
+    scene moved or not.
+    """
+
+    offset: tuple[float, float, float]
+    sensor: tuple[float, float, float] | None
+    reason: str
+
+    @property
+    def moved(self) -> bool:
+        return any(self.offset)
+
+
+# ------------------------------------------------------------------------------ the scene graph
+def _mi():
+    import mitsuba as mi
+
+    return mi
+
+
+def _children(props) -> list[int]:
+    """Indices of the nodes ``props`` references, in the order the scene states them."""
+    ref = _mi().Properties.Type.ResolvedReference
+    return [props[key].index() for key in props.keys() if props.type(key) == ref]
+
+
+def _is(node, kind: str) -> bool:
+    return node.type == getattr(_mi().ObjectType, kind)
+
+
+def _matrix(transform) -> np.ndarray:
+    return np.array(transform.matrix, dtype=np.float64)
+
+
+def _point(value) -> np.ndarray:
+    return np.array([float(v) for v in value], dtype=np.float64)
+
+
+def _transform(matrix: np.ndarray):
+    mi = _mi()
+    return mi.ScalarAffineTransform4d(mi.ScalarMatrix4d(matrix))
+
+
+def _translation(offset: np.ndarray) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, 3] = offset
+    return matrix
+
+
+def _has(props, key: str, kind: str) -> bool:
+    return key in props.keys() and props.type(key) == getattr(_mi().Properties.Type, kind)
+
+
+def _to_world(props) -> np.ndarray | None:
+    return _matrix(props["to_world"]) if _has(props, "to_world", "Transform") else None
+
+
+def _apply(matrix: np.ndarray | None, point) -> np.ndarray:
+    point = np.asarray(point, dtype=np.float64)
+    return point if matrix is None else matrix[:3, :3] @ point + matrix[:3, 3]
+
+
+def _walk(state) -> tuple[list[int], list[int], list[int]]:
+    """Nodes reachable from the root: (in world space, in a shape group's space, volumes anywhere)."""
+    world: dict[int, None] = {}
+    local: dict[int, None] = {}
+    stack = [(0, True)]
+    while stack:
+        index, in_world = stack.pop()
+        seen = world if in_world else local
+        if index in seen:
+            continue
+        seen[index] = None
+        node = state.nodes[index]
+        group = _is(node, "Shape") and node.props.plugin_name() == "shapegroup"
+        stack.extend((child, in_world and not group) for child in reversed(_children(node.props)))
+    volumes = [index for index in {**world, **local} if _is(state.nodes[index], "Volume")]
+    return list(world), list(local), volumes
+
+
+# ------------------------------------------------------------------------------ positions
+def _sensor_position(state, index: int) -> np.ndarray | None:
+    """Where a sensor node sits (float64), or None for one at infinity or attached to a shape."""
+    props = state.nodes[index].props
+    name = props.plugin_name()
+    if name in ("distant", "irradiancemeter"):
+        return None
+    if name == "batch":
+        for child in _children(props):
+            if _is(state.nodes[child], "Sensor"):
+                return _sensor_position(state, child)
+        return None
+    if name == "radiancemeter" and _has(props, "origin", "Vector"):
+        return _point(props["origin"])
+    return _apply(_to_world(props), np.zeros(3))
+
+
+def sensor_positions(state) -> list[np.ndarray | None]:
+    """The sensors' positions in the order Mitsuba lists them (``scene.sensors()``).
+
+    ``state`` is a parsed scene's ``mitsuba.parser.ParserState``. The scene's top-level objects
+    come in the order the file states them (the parser's ``merge`` container lists meshes after
+    the other objects); a sensor attached to a shape (``irradiancemeter``) has no position (None).
+    """
+    order, meshes = [], []
+    pending = _children(state.nodes[0].props)
+    while pending:
+        index = pending.pop(0)
+        node = state.nodes[index]
+        name = node.props.plugin_name()
+        if _is(node, "Shape") and name == "merge":
+            pending = _children(node.props) + pending
+        elif _is(node, "Sensor"):
+            order.append(_sensor_position(state, index))
+        elif _is(node, "Shape") and any(_is(state.nodes[c], "Sensor") for c in _children(node.props)):
+            (meshes if name in _MESHES else order).append(None)
+    return order + meshes
+
+
+def _node_position(node) -> np.ndarray | None:
+    """A representative world position of a shape, light, volume or integrator node (None: unknown)."""
+    props = node.props
+    name = props.plugin_name()
+    matrix = _to_world(props)
+    if _is(node, "Shape"):
+        if name in _CONTAINERS or (name in _FILE_SHAPES):
+            return None
+        if name == "sphere" and _has(props, "center", "Vector"):
+            return _apply(matrix, _point(props["center"]))
+        if name == "cylinder":
+            p0 = _point(props["p0"]) if _has(props, "p0", "Vector") else np.zeros(3)
+            p1 = _point(props["p1"]) if _has(props, "p1", "Vector") else np.array([0.0, 0.0, 1.0])
+            return _apply(matrix, 0.5 * (p0 + p1))
+        return _apply(matrix, np.zeros(3))
+    if _is(node, "Emitter"):
+        if name in _INFINITE or name in _ATTACHED:
+            return None
+        if name == "point" and _has(props, "position", "Vector"):
+            return _point(props["position"])
+        return _apply(matrix, np.zeros(3))
+    if _is(node, "Volume"):
+        return _apply(matrix, np.full(3, 0.5))          # the centre of the unit box it fills
+    if matrix is not None:                                 # e.g. the mip integrator's volume box
+        return _apply(matrix, np.zeros(3))
+    return None
+
+
+def stated_positions(state) -> np.ndarray:
+    """Positions the scene states for its content (shapes, lights, volumes), shape (N, 3) float64.
+
+    Sensors, things at infinity, shape groups' children (their instances count) and shapes
+    whose geometry comes from a file (unknown before loading) are left out.
+    """
+    world, _local, volumes = _walk(state)
+    points = []
+    for index in dict.fromkeys(world + volumes):
+        node = state.nodes[index]
+        if _is(node, "Sensor") or _is(node, "Scene"):
+            continue
+        point = _node_position(node)
+        if point is not None:
+            points.append(point)
+    return np.array(points, dtype=np.float64).reshape(-1, 3)
+
+
+def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[bool, str]:
+    """Whether a scene moves to its sensor, and why (see the module's documentation).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> recentre_rule(np.array([0.0, 1.6, 5.5]), np.array([[0, 0.5, 0], [2, 4, 3.0]]))[0]
+    False
+    >>> recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
+    (True, 'the sensor is 17321 from the origin, 5 from the median stated position')
+    >>> recentre_rule(np.array([0.0, 0.0, 3e3]), np.zeros((0, 3)))[0]
+    True
+    """
+    if sensor is None:
+        return False, "the rendered sensor has no position (distant or attached to a shape)"
+    if not np.all(np.abs(sensor) <= np.finfo(np.float32).max):
+        return False, "the sensor's position is not a finite float32 number"
+    positions = positions[np.all(np.isfinite(positions), axis=1)]
+    far = float(np.linalg.norm(sensor))
+    if far == 0.0:
+        return False, "the sensor is at the origin"
+    if len(positions) == 0:
+        return far > FAR, f"the sensor is {far:.5g} from the origin (no other stated position; moves beyond {FAR:g})"
+    near = float(np.median(np.linalg.norm(positions - sensor, axis=1)))
+    return far >= GAIN * near, (f"the sensor is {far:.5g} from the origin, {near:.5g} from the median "
+                                "stated position")
+
+
+# ------------------------------------------------------------------------------ moving
+def _move_to_world(props, offset: np.ndarray, *, add: bool) -> None:
+    """``to_world`` <- translate(-offset) @ to_world; with ``add``, also where the scene states none."""
+    matrix = _to_world(props)
+    if matrix is None and not add:
+        return
+    matrix = _translation(-offset) @ (np.eye(4) if matrix is None else matrix)
+    props["to_world"] = _transform(matrix)
+
+
+def _move_point(props, key: str, offset: np.ndarray) -> None:
+    props[key] = _mi().ScalarPoint3d(*(_point(props[key]) - offset))
+
+
+def _move_node(node, offset: np.ndarray) -> None:
+    """Move one world-space node by ``-offset`` (see the module's documentation for the cases)."""
+    mi = _mi()
+    props = node.props
+    name = props.plugin_name()
+    if _is(node, "Shape"):
+        if name in _CONTAINERS:
+            return
+        if name == "sphere" and _has(props, "center", "Vector"):
+            if _to_world(props) is None:
+                return _move_point(props, "center", offset)
+            center = _point(props["center"])
+            del props["center"]
+            props["to_world"] = _transform(_translation(-offset) @ _to_world(props) @ _translation(center))
+            return
+        if name == "cylinder" and (_has(props, "p0", "Vector") or _has(props, "p1", "Vector")):
+            p0 = _point(props["p0"]) if _has(props, "p0", "Vector") else np.zeros(3)
+            p1 = _point(props["p1"]) if _has(props, "p1", "Vector") else np.array([0.0, 0.0, 1.0])
+            if _to_world(props) is None:
+                props["p0"], props["p1"] = mi.ScalarPoint3d(*(p0 - offset)), mi.ScalarPoint3d(*(p1 - offset))
+                return
+            props["to_world"] = _transform(_translation(-offset) @ _to_world(props) @ _translation(p0))
+            props["p0"], props["p1"] = mi.ScalarPoint3d(0.0, 0.0, 0.0), mi.ScalarPoint3d(*(p1 - p0))
+            return
+        return _move_to_world(props, offset, add=True)
+    if _is(node, "Emitter"):
+        if name in _INFINITE or name in _ATTACHED:
+            return
+        if name == "point" and _has(props, "position", "Vector"):
+            return _move_point(props, "position", offset)
+        return _move_to_world(props, offset, add=True)
+    if _is(node, "Sensor"):
+        if name == "irradiancemeter":
+            return
+        if name == "distant":
+            if _has(props, "target", "Vector"):
+                _move_point(props, "target", offset)
+            return
+        if name == "radiancemeter" and (_has(props, "origin", "Vector") or "direction" in props.keys()):
+            if _has(props, "origin", "Vector"):
+                _move_point(props, "origin", offset)
+            else:
+                props["origin"] = mi.ScalarPoint3d(*(-offset))
+            return
+        return _move_to_world(props, offset, add=name != "batch")
+    if _is(node, "Volume") or (_is(node, "Integrator") and name == "mip"):
+        return _move_to_world(props, offset, add=True)
+    _move_to_world(props, offset, add=False)
+
+
+def make_camera_relative(parsed, *, sensor: int = 0):
+    """Re-express a parsed scene relative to its rendered sensor's position, in place.
+
+    Parameters
+    ----------
+    parsed : pointillist.scene.ParsedScene
+        A scene parsed by :func:`pointillist.scene.parse_scene` and not yet instantiated. Its
+        ``state`` is changed and its ``recentring`` set to a :class:`Recentring`.
+    sensor : int, optional
+        The index of the sensor that will be rendered (Mitsuba's order); its position becomes
+        the origin. Default 0 (the one ``pointillist render`` renders).
+
+    Returns
+    -------
+    pointillist.scene.ParsedScene
+        ``parsed`` itself.
+
+    Notes
+    -----
+    The scene moves by the sensor's position rounded to float32 (so the camera ends within half a
+    float32 spacing of the origin, and float32 data the translation meets, such as mesh vertices,
+    moves exactly) when :func:`recentre_rule` says so; otherwise ``state`` is untouched and the
+    offset is zero. Calling it again on the same parsed scene does nothing. A positional node
+    reachable both from the scene and from inside a shape group cannot be both moved and kept:
+    the scene is then left as written (``reason`` says so).
+
+    Examples
+    --------
+    >>> import pointillist
+    >>> from pointillist.scene import instantiate_scene, parse_scene
+    >>> mi = pointillist.setup()
+    >>> parsed = make_camera_relative(parse_scene("scenes/default.xml", {"res": "8"}))
+    >>> parsed.recentring.offset, parsed.recentring.moved
+    ((0.0, 0.0, 0.0), False)
+    """
+    if getattr(parsed, "recentring", None) is not None:
+        return parsed
+    if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) or sensor < 0:
+        raise ValueError(f"sensor: expected a non-negative integer, got {sensor!r}")
+    state = parsed.state
+    positions = sensor_positions(state)
+    where = positions[sensor] if sensor < len(positions) else None
+    moves, reason = recentre_rule(where, stated_positions(state))
+    if sensor >= len(positions):
+        reason = f"the scene has no sensor {sensor} ({len(positions)} sensor(s))"
+    if moves:
+        world, local, volumes = _walk(state)
+        blocked = _blocked(state, world, local)
+        if blocked:
+            moves, reason = False, blocked
+    stated = None if where is None else tuple(float(v) for v in where)
+    if not moves:
+        parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, reason)
+        return parsed
+    offset = np.asarray(where, dtype=np.float32).astype(np.float64)
+    for index in dict.fromkeys(world + volumes):
+        node = state.nodes[index]
+        if not _is(node, "Scene"):
+            _move_node(node, offset)
+    parsed.recentring = Recentring(tuple(float(v) for v in offset), stated, reason)
+    return parsed
+
+
+def _blocked(state, world: list[int], local: list[int]) -> str:
+    """Why the scene cannot move rigidly ('' when it can)."""
+    both = [state.nodes[i] for i in set(world) & set(local)]
+    if any((_is(node, "Shape") and node.props.plugin_name() not in _CONTAINERS)
+           or (_is(node, "Emitter") and node.props.plugin_name() not in _INFINITE | _ATTACHED) for node in both):
+        return "a shape or light is used both in the scene and inside a shapegroup (it cannot both move and stay)"
+    for index in world:
+        props = state.nodes[index].props
+        tensor = any(key in props.keys() for key in _TENSOR_PROPERTIES)
+        if props.plugin_name() in ("ellipsoids", "ellipsoidsmesh") and tensor:
+            return f"a {props.plugin_name()} shape given as a tensor cannot move (it refuses a to_world)"
+    return ""
+
+
+def offset_text(recentring: Recentring | None) -> str:
+    """The offset as the EXR header's ``origin_offset`` records it: ``"x,y,z"``, exact float64 text.
+
+    Examples
+    --------
+    >>> offset_text(Recentring((10000.0, 10001.599609375, 10005.5), None, ""))
+    '10000.0,10001.599609375,10005.5'
+    >>> offset_text(None)
+    '0.0,0.0,0.0'
+    """
+    values: Any = recentring.offset if recentring is not None else (0.0, 0.0, 0.0)
+    return ",".join(repr(float(v)) for v in values)
