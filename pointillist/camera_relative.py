@@ -65,6 +65,8 @@ GAIN = 2.0
 #: this from the origin (float32 coordinates there are 6.1e-5 apart).
 FAR = 1e3
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 #: Plugins whose ``to_world`` is a rotation of something infinitely far (translation unused).
 _INFINITE = frozenset({"directional", "envmap", "constant", "sunsky", "timed_sunsky", "distant"})
 #: Plugins attached to a shape (the shape moves; they refuse a ``to_world`` of their own).
@@ -101,33 +103,69 @@ class Recentring:
 
 
 # ------------------------------------------------------------------------------ the scene graph
-def _mi():
-    import mitsuba as mi
+@dataclass
+class _Node:
+    """One node of a parsed scene, read once: object kind (``Shape``, ``Sensor`` ...), plugin
+    name, properties (``props``, changed in place), property kinds by name, referenced nodes."""
 
-    return mi
+    index: int
+    kind: str
+    name: str
+    props: Any
+    types: dict[str, str]
+    children: list[int]
+    matrix: Any = False          # to_world as a float64 array once read (None: the node has none)
+
+    def has(self, key: str, kind: str) -> bool:
+        return self.types.get(key) == kind
+
+    def point(self, key: str, default=None) -> np.ndarray | None:
+        if not self.has(key, "Vector"):
+            return None if default is None else np.asarray(default, dtype=np.float64)
+        return np.array([float(v) for v in self.props[key]], dtype=np.float64)
+
+    def to_world(self) -> np.ndarray | None:
+        if self.matrix is False:
+            self.matrix = (np.array(self.props["to_world"].matrix, dtype=np.float64)
+                           if self.has("to_world", "Transform") else None)
+        return self.matrix
 
 
-def _children(props) -> list[int]:
-    """Indices of the nodes ``props`` references, in the order the scene states them."""
-    ref = _mi().Properties.Type.ResolvedReference
-    return [props[key].index() for key in props.keys() if props.type(key) == ref]
+#: Mitsuba's enums by value -> their names (object kinds, property kinds), filled on first use.
+_NAMES: dict[Any, str] = {}
 
 
-def _is(node, kind: str) -> bool:
-    return node.type == getattr(_mi().ObjectType, kind)
+def _names() -> dict[Any, str]:
+    if not _NAMES:
+        import mitsuba as mi
+
+        _NAMES.update({value: name for name, value in mi.ObjectType.__members__.items()})
+        _NAMES.update({value: name for name, value in mi.Properties.Type.__members__.items()})
+    return _NAMES
 
 
-def _matrix(transform) -> np.ndarray:
-    return np.array(transform.matrix, dtype=np.float64)
-
-
-def _point(value) -> np.ndarray:
-    return np.array([float(v) for v in value], dtype=np.float64)
+def _graph(state) -> list[_Node]:
+    """Every node of ``state`` (a ``mitsuba.parser.ParserState``) as a :class:`_Node`."""
+    names = _names()
+    nodes = []
+    for index, node in enumerate(state.nodes):
+        props = node.props
+        types = {key: names[props.type(key)] for key in props.keys()}
+        children = [props[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
+        nodes.append(_Node(index, names[node.type], props.plugin_name(), props, types, children))
+    return nodes
 
 
 def _transform(matrix: np.ndarray):
-    mi = _mi()
+    import mitsuba as mi
+
     return mi.ScalarAffineTransform4d(mi.ScalarMatrix4d(matrix))
+
+
+def _point3(p: np.ndarray):
+    import mitsuba as mi
+
+    return mi.ScalarPoint3d(*(float(v) for v in p))
 
 
 def _translation(offset: np.ndarray) -> np.ndarray:
@@ -136,20 +174,12 @@ def _translation(offset: np.ndarray) -> np.ndarray:
     return matrix
 
 
-def _has(props, key: str, kind: str) -> bool:
-    return key in props.keys() and props.type(key) == getattr(_mi().Properties.Type, kind)
-
-
-def _to_world(props) -> np.ndarray | None:
-    return _matrix(props["to_world"]) if _has(props, "to_world", "Transform") else None
-
-
 def _apply(matrix: np.ndarray | None, point) -> np.ndarray:
     point = np.asarray(point, dtype=np.float64)
     return point if matrix is None else matrix[:3, :3] @ point + matrix[:3, 3]
 
 
-def _walk(state) -> tuple[list[int], list[int], list[int]]:
+def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
     """Nodes reachable from the root: (in world space, in a shape group's space, volumes anywhere)."""
     world: dict[int, None] = {}
     local: dict[int, None] = {}
@@ -160,28 +190,38 @@ def _walk(state) -> tuple[list[int], list[int], list[int]]:
         if index in seen:
             continue
         seen[index] = None
-        node = state.nodes[index]
-        group = _is(node, "Shape") and node.props.plugin_name() == "shapegroup"
-        stack.extend((child, in_world and not group) for child in reversed(_children(node.props)))
-    volumes = [index for index in {**world, **local} if _is(state.nodes[index], "Volume")]
+        node = nodes[index]
+        group = node.kind == "Shape" and node.name == "shapegroup"
+        stack.extend((child, in_world and not group) for child in reversed(node.children))
+    volumes = [index for index in {**world, **local} if nodes[index].kind == "Volume"]
     return list(world), list(local), volumes
 
 
 # ------------------------------------------------------------------------------ positions
-def _sensor_position(state, index: int) -> np.ndarray | None:
+def _sensor_position(nodes: list[_Node], node: _Node) -> np.ndarray | None:
     """Where a sensor node sits (float64), or None for one at infinity or attached to a shape."""
-    props = state.nodes[index].props
-    name = props.plugin_name()
-    if name in ("distant", "irradiancemeter"):
+    if node.name in ("distant", "irradiancemeter"):
         return None
-    if name == "batch":
-        for child in _children(props):
-            if _is(state.nodes[child], "Sensor"):
-                return _sensor_position(state, child)
-        return None
-    if name == "radiancemeter" and _has(props, "origin", "Vector"):
-        return _point(props["origin"])
-    return _apply(_to_world(props), np.zeros(3))
+    if node.name == "batch":
+        inner = [nodes[c] for c in node.children if nodes[c].kind == "Sensor"]
+        return _sensor_position(nodes, inner[0]) if inner else None
+    if node.name == "radiancemeter" and node.has("origin", "Vector"):
+        return node.point("origin")
+    return _apply(node.to_world(), np.zeros(3))
+
+
+def _sensor_positions(nodes: list[_Node]) -> list[np.ndarray | None]:
+    order, meshes = [], []
+    pending = list(nodes[0].children)
+    while pending:
+        node = nodes[pending.pop(0)]
+        if node.kind == "Shape" and node.name == "merge":
+            pending = node.children + pending
+        elif node.kind == "Sensor":
+            order.append(_sensor_position(nodes, node))
+        elif node.kind == "Shape" and any(nodes[c].kind == "Sensor" for c in node.children):
+            (meshes if node.name in _MESHES else order).append(None)
+    return order + meshes
 
 
 def sensor_positions(state) -> list[np.ndarray | None]:
@@ -191,47 +231,36 @@ def sensor_positions(state) -> list[np.ndarray | None]:
     come in the order the file states them (the parser's ``merge`` container lists meshes after
     the other objects); a sensor attached to a shape (``irradiancemeter``) has no position (None).
     """
-    order, meshes = [], []
-    pending = _children(state.nodes[0].props)
-    while pending:
-        index = pending.pop(0)
-        node = state.nodes[index]
-        name = node.props.plugin_name()
-        if _is(node, "Shape") and name == "merge":
-            pending = _children(node.props) + pending
-        elif _is(node, "Sensor"):
-            order.append(_sensor_position(state, index))
-        elif _is(node, "Shape") and any(_is(state.nodes[c], "Sensor") for c in _children(node.props)):
-            (meshes if name in _MESHES else order).append(None)
-    return order + meshes
+    return _sensor_positions(_graph(state))
 
 
-def _node_position(node) -> np.ndarray | None:
+def _node_position(node: _Node) -> np.ndarray | None:
     """A representative world position of a shape, light, volume or integrator node (None: unknown)."""
-    props = node.props
-    name = props.plugin_name()
-    matrix = _to_world(props)
-    if _is(node, "Shape"):
-        if name in _CONTAINERS or (name in _FILE_SHAPES):
+    matrix = node.to_world()
+    if node.kind == "Shape":
+        if node.name in _CONTAINERS or node.name in _FILE_SHAPES:
             return None
-        if name == "sphere" and _has(props, "center", "Vector"):
-            return _apply(matrix, _point(props["center"]))
-        if name == "cylinder":
-            p0 = _point(props["p0"]) if _has(props, "p0", "Vector") else np.zeros(3)
-            p1 = _point(props["p1"]) if _has(props, "p1", "Vector") else np.array([0.0, 0.0, 1.0])
-            return _apply(matrix, 0.5 * (p0 + p1))
+        if node.name == "sphere" and node.has("center", "Vector"):
+            return _apply(matrix, node.point("center"))
+        if node.name == "cylinder":
+            return _apply(matrix, 0.5 * (node.point("p0", (0, 0, 0)) + node.point("p1", (0, 0, 1))))
         return _apply(matrix, np.zeros(3))
-    if _is(node, "Emitter"):
-        if name in _INFINITE or name in _ATTACHED:
+    if node.kind == "Emitter":
+        if node.name in _INFINITE or node.name in _ATTACHED:
             return None
-        if name == "point" and _has(props, "position", "Vector"):
-            return _point(props["position"])
+        if node.name == "point" and node.has("position", "Vector"):
+            return node.point("position")
         return _apply(matrix, np.zeros(3))
-    if _is(node, "Volume"):
+    if node.kind == "Volume":
         return _apply(matrix, np.full(3, 0.5))          # the centre of the unit box it fills
-    if matrix is not None:                                 # e.g. the mip integrator's volume box
+    if matrix is not None and node.kind not in ("Sensor", "Scene"):   # e.g. the mip integrator's box
         return _apply(matrix, np.zeros(3))
     return None
+
+
+def _stated_positions(nodes: list[_Node], world: list[int], volumes: list[int]) -> np.ndarray:
+    points = [_node_position(nodes[i]) for i in dict.fromkeys(world + volumes)]
+    return np.array([p for p in points if p is not None], dtype=np.float64).reshape(-1, 3)
 
 
 def stated_positions(state) -> np.ndarray:
@@ -240,16 +269,9 @@ def stated_positions(state) -> np.ndarray:
     Sensors, things at infinity, shape groups' children (their instances count) and shapes
     whose geometry comes from a file (unknown before loading) are left out.
     """
-    world, _local, volumes = _walk(state)
-    points = []
-    for index in dict.fromkeys(world + volumes):
-        node = state.nodes[index]
-        if _is(node, "Sensor") or _is(node, "Scene"):
-            continue
-        point = _node_position(node)
-        if point is not None:
-            points.append(point)
-    return np.array(points, dtype=np.float64).reshape(-1, 3)
+    nodes = _graph(state)
+    world, _local, volumes = _walk(nodes)
+    return _stated_positions(nodes, world, volumes)
 
 
 def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[bool, str]:
@@ -267,7 +289,7 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     """
     if sensor is None:
         return False, "the rendered sensor has no position (distant or attached to a shape)"
-    if not np.all(np.abs(sensor) <= np.finfo(np.float32).max):
+    if not np.all(np.abs(sensor) <= _FLOAT32_MAX):
         return False, "the sensor's position is not a finite float32 number"
     positions = positions[np.all(np.isfinite(positions), axis=1)]
     far = float(np.linalg.norm(sensor))
@@ -275,73 +297,76 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
         return False, "the sensor is at the origin"
     if len(positions) == 0:
         return far > FAR, f"the sensor is {far:.5g} from the origin (no other stated position; moves beyond {FAR:g})"
-    near = float(np.median(np.linalg.norm(positions - sensor, axis=1)))
+    # the median by hand: numpy's imports a numpy submodule on first use and the statistics module
+    # takes as long to import (tens of ms, more than the step itself, of every first load)
+    distances = sorted(np.linalg.norm(positions - sensor, axis=1).tolist())
+    half = len(distances) // 2
+    near = distances[half] if len(distances) % 2 else 0.5 * (distances[half - 1] + distances[half])
     return far >= GAIN * near, (f"the sensor is {far:.5g} from the origin, {near:.5g} from the median "
                                 "stated position")
 
 
 # ------------------------------------------------------------------------------ moving
-def _move_to_world(props, offset: np.ndarray, *, add: bool) -> None:
+def _move_to_world(node: _Node, offset: np.ndarray, *, add: bool) -> None:
     """``to_world`` <- translate(-offset) @ to_world; with ``add``, also where the scene states none."""
-    matrix = _to_world(props)
+    matrix = node.to_world()
     if matrix is None and not add:
         return
-    matrix = _translation(-offset) @ (np.eye(4) if matrix is None else matrix)
-    props["to_world"] = _transform(matrix)
+    node.props["to_world"] = _transform(_translation(-offset) @ (np.eye(4) if matrix is None else matrix))
 
 
-def _move_point(props, key: str, offset: np.ndarray) -> None:
-    props[key] = _mi().ScalarPoint3d(*(_point(props[key]) - offset))
+def _move_point(node: _Node, key: str, offset: np.ndarray) -> None:
+    node.props[key] = _point3(node.point(key) - offset)
 
 
-def _move_node(node, offset: np.ndarray) -> None:
+def _move_node(node: _Node, offset: np.ndarray) -> None:
     """Move one world-space node by ``-offset`` (see the module's documentation for the cases)."""
-    mi = _mi()
-    props = node.props
-    name = props.plugin_name()
-    if _is(node, "Shape"):
+    props, name, kind = node.props, node.name, node.kind
+    if kind == "Shape":
         if name in _CONTAINERS:
             return
-        if name == "sphere" and _has(props, "center", "Vector"):
-            if _to_world(props) is None:
-                return _move_point(props, "center", offset)
-            center = _point(props["center"])
+        if name == "sphere" and node.has("center", "Vector"):
+            matrix = node.to_world()
+            if matrix is None:
+                return _move_point(node, "center", offset)
+            center = node.point("center")
             del props["center"]
-            props["to_world"] = _transform(_translation(-offset) @ _to_world(props) @ _translation(center))
+            props["to_world"] = _transform(_translation(-offset) @ matrix @ _translation(center))
             return
-        if name == "cylinder" and (_has(props, "p0", "Vector") or _has(props, "p1", "Vector")):
-            p0 = _point(props["p0"]) if _has(props, "p0", "Vector") else np.zeros(3)
-            p1 = _point(props["p1"]) if _has(props, "p1", "Vector") else np.array([0.0, 0.0, 1.0])
-            if _to_world(props) is None:
-                props["p0"], props["p1"] = mi.ScalarPoint3d(*(p0 - offset)), mi.ScalarPoint3d(*(p1 - offset))
+        if name == "cylinder" and (node.has("p0", "Vector") or node.has("p1", "Vector")):
+            p0, p1 = node.point("p0", (0, 0, 0)), node.point("p1", (0, 0, 1))
+            matrix = node.to_world()
+            if matrix is None:
+                props["p0"], props["p1"] = _point3(p0 - offset), _point3(p1 - offset)
                 return
-            props["to_world"] = _transform(_translation(-offset) @ _to_world(props) @ _translation(p0))
-            props["p0"], props["p1"] = mi.ScalarPoint3d(0.0, 0.0, 0.0), mi.ScalarPoint3d(*(p1 - p0))
+            props["to_world"] = _transform(_translation(-offset) @ matrix @ _translation(p0))
+            props["p0"], props["p1"] = _point3(np.zeros(3)), _point3(p1 - p0)
             return
-        return _move_to_world(props, offset, add=True)
-    if _is(node, "Emitter"):
+        return _move_to_world(node, offset, add=True)
+    if kind == "Emitter":
         if name in _INFINITE or name in _ATTACHED:
             return
-        if name == "point" and _has(props, "position", "Vector"):
-            return _move_point(props, "position", offset)
-        return _move_to_world(props, offset, add=True)
-    if _is(node, "Sensor"):
+        if name == "point" and node.has("position", "Vector"):
+            return _move_point(node, "position", offset)
+        return _move_to_world(node, offset, add=True)
+    if kind == "Sensor":
         if name == "irradiancemeter":
             return
         if name == "distant":
-            if _has(props, "target", "Vector"):
-                _move_point(props, "target", offset)
+            if node.has("target", "Vector"):
+                _move_point(node, "target", offset)
             return
-        if name == "radiancemeter" and (_has(props, "origin", "Vector") or "direction" in props.keys()):
-            if _has(props, "origin", "Vector"):
-                _move_point(props, "origin", offset)
+        if name == "radiancemeter" and (node.has("origin", "Vector") or "direction" in node.types):
+            if node.has("origin", "Vector"):
+                _move_point(node, "origin", offset)
             else:
-                props["origin"] = mi.ScalarPoint3d(*(-offset))
+                props["origin"] = _point3(-offset)
             return
-        return _move_to_world(props, offset, add=name != "batch")
-    if _is(node, "Volume") or (_is(node, "Integrator") and name == "mip"):
-        return _move_to_world(props, offset, add=True)
-    _move_to_world(props, offset, add=False)
+        return _move_to_world(node, offset, add=name != "batch")
+    if kind == "Volume" or (kind == "Integrator" and name == "mip"):
+        return _move_to_world(node, offset, add=True)
+    if kind != "Scene":
+        _move_to_world(node, offset, add=False)
 
 
 def make_camera_relative(parsed, *, sensor: int = 0):
@@ -383,41 +408,37 @@ def make_camera_relative(parsed, *, sensor: int = 0):
         return parsed
     if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) or sensor < 0:
         raise ValueError(f"sensor: expected a non-negative integer, got {sensor!r}")
-    state = parsed.state
-    positions = sensor_positions(state)
+    nodes = _graph(parsed.state)
+    world, local, volumes = _walk(nodes)
+    positions = _sensor_positions(nodes)
     where = positions[sensor] if sensor < len(positions) else None
-    moves, reason = recentre_rule(where, stated_positions(state))
+    moves, reason = recentre_rule(where, _stated_positions(nodes, world, volumes))
     if sensor >= len(positions):
         reason = f"the scene has no sensor {sensor} ({len(positions)} sensor(s))"
-    if moves:
-        world, local, volumes = _walk(state)
-        blocked = _blocked(state, world, local)
-        if blocked:
-            moves, reason = False, blocked
+    blocked = _blocked(nodes, world, local) if moves else ""
+    if blocked:
+        moves, reason = False, blocked
     stated = None if where is None else tuple(float(v) for v in where)
     if not moves:
         parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, reason)
         return parsed
     offset = np.asarray(where, dtype=np.float32).astype(np.float64)
     for index in dict.fromkeys(world + volumes):
-        node = state.nodes[index]
-        if not _is(node, "Scene"):
-            _move_node(node, offset)
+        _move_node(nodes[index], offset)
     parsed.recentring = Recentring(tuple(float(v) for v in offset), stated, reason)
     return parsed
 
 
-def _blocked(state, world: list[int], local: list[int]) -> str:
+def _blocked(nodes: list[_Node], world: list[int], local: list[int]) -> str:
     """Why the scene cannot move rigidly ('' when it can)."""
-    both = [state.nodes[i] for i in set(world) & set(local)]
-    if any((_is(node, "Shape") and node.props.plugin_name() not in _CONTAINERS)
-           or (_is(node, "Emitter") and node.props.plugin_name() not in _INFINITE | _ATTACHED) for node in both):
+    both = [nodes[i] for i in set(world) & set(local)]
+    if any((node.kind == "Shape" and node.name not in _CONTAINERS)
+           or (node.kind == "Emitter" and node.name not in _INFINITE | _ATTACHED) for node in both):
         return "a shape or light is used both in the scene and inside a shapegroup (it cannot both move and stay)"
     for index in world:
-        props = state.nodes[index].props
-        tensor = any(key in props.keys() for key in _TENSOR_PROPERTIES)
-        if props.plugin_name() in ("ellipsoids", "ellipsoidsmesh") and tensor:
-            return f"a {props.plugin_name()} shape given as a tensor cannot move (it refuses a to_world)"
+        node = nodes[index]
+        if node.name in ("ellipsoids", "ellipsoidsmesh") and any(key in node.types for key in _TENSOR_PROPERTIES):
+            return f"a {node.name} shape given as a tensor cannot move (it refuses a to_world)"
     return ""
 
 

@@ -36,19 +36,46 @@ def _csv(p) -> str:
     return ", ".join(repr(float(v)) for v in p)
 
 
+#: The spheres: name -> (centre, radius, BSDF as XML).
+SPHERES = {
+    "phong": ((-1.2, 0.5, 0.2), 0.5, '<bsdf type="phong"><float name="exponent" value="30"/>'
+              '<rgb name="diffuse_reflectance" value="0.6, 0.2, 0.15"/>'
+              '<float name="specular_reflectance" value="0.3"/></bsdf>'),
+    "mirror": ((0.0, 0.6, -0.8), 0.6, '<bsdf type="conductor"><string name="material" value="none"/></bsdf>'),
+    "glass": ((1.1, 0.5, 0.6), 0.5, '<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>'),
+}
+#: The floor: a rectangle 8 x 8 at y = 0.
+FLOOR_HALF_SIZE, FLOOR_BSDF = 4.0, '<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.55"/></bsdf>'
+CAMERA_ORIGIN, CAMERA_TARGET = (0.0, 1.6, 5.5), (0.0, 0.4, 0.0)
+LIGHT_POSITION, LIGHT_INTENSITY = (2.0, 4.0, 3.0), 40.0
+
+
 def far_scene_xml(offset: float = 0.0, axis: str = "xyz", integrator: str = "whitted", *,
-                  res: int = RES, spp: int = SPP) -> str:
-    """The scene's XML with every stated position moved by ``offset`` along ``AXES[axis]``."""
+                  res: int = RES, spp: int = SPP, shapes: str | None = None) -> str:
+    """The scene's XML with every stated position moved by ``offset`` along ``AXES[axis]``.
+
+    ``shapes`` replaces the floor and the spheres (XML of ``<shape>`` elements, e.g. as meshes).
+    """
     shift = np.asarray(AXES[axis]) * float(offset)
 
-    def at(*p):
+    def at(p):
         return np.asarray(p, dtype=np.float64) + shift
 
-    sphere = '''    <shape type="sphere">
-        <point name="center" {c}/>
-        <float name="radius" value="{r}"/>
+    if shapes is None:
+        shapes = f'''    <shape type="rectangle">
+        <transform name="to_world">
+            <scale value="{FLOOR_HALF_SIZE!r}"/>
+            <rotate x="1" angle="-90"/>
+            <translate {_xyz(shift)}/>
+        </transform>
+        {FLOOR_BSDF}
+    </shape>
+''' + "".join(f'''    <shape type="sphere">
+        <point name="center" {_xyz(at(centre))}/>
+        <float name="radius" value="{radius!r}"/>
         {bsdf}
-    </shape>'''
+    </shape>
+''' for centre, radius, bsdf in SPHERES.values())
     return f'''<scene version="3.0.0">
     {INTEGRATORS[integrator]}
     <sensor type="perspective">
@@ -56,7 +83,7 @@ def far_scene_xml(offset: float = 0.0, axis: str = "xyz", integrator: str = "whi
         <float name="near_clip" value="0.01"/>
         <float name="far_clip" value="1000"/>
         <transform name="to_world">
-            <lookat origin="{_csv(at(0, 1.6, 5.5))}" target="{_csv(at(0, 0.4, 0))}" up="0, 1, 0"/>
+            <lookat origin="{_csv(at(CAMERA_ORIGIN))}" target="{_csv(at(CAMERA_TARGET))}" up="0, 1, 0"/>
         </transform>
         <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler>
         <film type="hdrfilm">
@@ -65,24 +92,9 @@ def far_scene_xml(offset: float = 0.0, axis: str = "xyz", integrator: str = "whi
             <rfilter type="box"/>
         </film>
     </sensor>
-    <shape type="rectangle">
-        <transform name="to_world">
-            <scale value="4"/>
-            <rotate x="1" angle="-90"/>
-            <translate {_xyz(shift)}/>
-        </transform>
-        <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.55"/></bsdf>
-    </shape>
-{sphere.format(c=_xyz(at(-1.2, 0.5, 0.2)), r=0.5, bsdf='<bsdf type="phong"><float name="exponent" value="30"/>'
-               '<rgb name="diffuse_reflectance" value="0.6, 0.2, 0.15"/>'
-               '<float name="specular_reflectance" value="0.3"/></bsdf>')}
-{sphere.format(c=_xyz(at(0.0, 0.6, -0.8)), r=0.6,
-               bsdf='<bsdf type="conductor"><string name="material" value="none"/></bsdf>')}
-{sphere.format(c=_xyz(at(1.1, 0.5, 0.6)), r=0.5,
-               bsdf='<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>')}
-    <emitter type="point">
-        <point name="position" {_xyz(at(2.0, 4.0, 3.0))}/>
-        <rgb name="intensity" value="40"/>
+{shapes}    <emitter type="point">
+        <point name="position" {_xyz(at(LIGHT_POSITION))}/>
+        <rgb name="intensity" value="{LIGHT_INTENSITY!r}"/>
     </emitter>
 </scene>
 '''
