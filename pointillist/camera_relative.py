@@ -106,12 +106,14 @@ class Recentring:
 @dataclass
 class _Node:
     """One node of a parsed scene, read once: object kind (``Shape``, ``Sensor`` ...), plugin
-    name, properties (``props``, changed in place), property kinds by name, referenced nodes."""
+    name, properties (``props``, changed in place), their values and kinds by name (``Vector``,
+    ``Transform``, ``ResolvedReference`` or ''), referenced nodes."""
 
     index: int
     kind: str
     name: str
     props: Any
+    values: dict[str, Any]
     types: dict[str, str]
     children: list[int]
     matrix: Any = False          # to_world as a float64 array once read (None: the node has none)
@@ -122,37 +124,33 @@ class _Node:
     def point(self, key: str, default=None) -> np.ndarray | None:
         if not self.has(key, "Vector"):
             return None if default is None else np.asarray(default, dtype=np.float64)
-        return np.array([float(v) for v in self.props[key]], dtype=np.float64)
+        return np.array([float(v) for v in self.values[key]], dtype=np.float64)
 
     def to_world(self) -> np.ndarray | None:
         if self.matrix is False:
-            self.matrix = (np.array(self.props["to_world"].matrix, dtype=np.float64)
+            self.matrix = (np.array(self.values["to_world"].matrix, dtype=np.float64)
                            if self.has("to_world", "Transform") else None)
         return self.matrix
 
 
-#: Mitsuba's enums by value -> their names (object kinds, property kinds), filled on first use.
-_NAMES: dict[Any, str] = {}
-
-
-def _names() -> dict[Any, str]:
-    if not _NAMES:
-        import mitsuba as mi
-
-        _NAMES.update({value: name for name, value in mi.ObjectType.__members__.items()})
-        _NAMES.update({value: name for name, value in mi.Properties.Type.__members__.items()})
-    return _NAMES
-
-
 def _graph(state) -> list[_Node]:
-    """Every node of ``state`` (a ``mitsuba.parser.ParserState``) as a :class:`_Node`."""
-    names = _names()
+    """Every node of ``state`` (a ``mitsuba.parser.ParserState``) as a :class:`_Node`.
+
+    Property kinds come from the values' Python types (one ``items()`` call per node: asking
+    ``props.type`` key by key costs several times more, through Python's enum hashing).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    kinds = {mi.Properties.ResolvedReference: "ResolvedReference", mi.ScalarAffineTransform4d: "Transform",
+             dr.scalar.Array3f64: "Vector"}
     nodes = []
     for index, node in enumerate(state.nodes):
         props = node.props
-        types = {key: names[props.type(key)] for key in props.keys()}
-        children = [props[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
-        nodes.append(_Node(index, names[node.type], props.plugin_name(), props, types, children))
+        values = dict(props.items())
+        types = {key: kinds.get(type(value), "") for key, value in values.items()}
+        children = [values[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
+        nodes.append(_Node(index, node.type.name, props.plugin_name(), props, values, types, children))
     return nodes
 
 
