@@ -306,6 +306,17 @@ def _pct(x: float) -> str:
     return f"{100 * x:.2f} %"
 
 
+def _offset_table(cells: dict, rows: list[tuple[str, str, tuple]], columns: tuple[str, str]) -> list[str]:
+    """A Markdown table of before / after fractions: one row per (label, label, key), one column
+    per offset; ``cells[key + (offset, after)]``."""
+    out = [f"| {columns[0]} | {columns[1]} | " + " | ".join(f"{o:g} before / after" for o in OFFSETS) + " |",
+           "|---|---|" + "---|" * len(OFFSETS)]
+    for first, second, key in rows:
+        out.append(f"| {first} | {second} | " + " | ".join(
+            f"{_pct(cells[key + (o, False)])} / **{_pct(cells[key + (o, True)])}**" for o in OFFSETS) + " |")
+    return out
+
+
 def report(args, pixels, meshes, ops, loads, seconds, load_avg) -> str:
     import drjit as dr
     import mitsuba as mi
@@ -320,30 +331,19 @@ def report(args, pixels, meshes, ops, loads, seconds, load_avg) -> str:
            "on the scene at the origin, same seed: issue 30's scene (tests/far_scenes.py, 80x80, 4 spp, seed 1) "
            "with every position written into the XML moved by the offset along the axis; *before*: loaded as "
            "written, *after*: camera-relative (`load_scene`, what `pointillist render` does). Goal: at most 0.5 % at "
-           "1e4, 1e5, 1e6 for whitted and `path`.", "",
-           "| integrator | axis | " + " | ".join(f"{o:g} before / after" for o in OFFSETS) + " |",
-           "|---|---|" + "---|" * len(OFFSETS)]
-    for integrator in INTEGRATORS:
-        name = "`path` (max_depth 6)" if integrator == "path" else f"`{integrator}`" if integrator == "direct" \
-            else integrator
-        for axis in AXES:
-            out.append(f"| {name} | {axis} | " + " | ".join(
-                f"{_pct(pixels[(integrator, axis, o, False)])} / **{_pct(pixels[(integrator, axis, o, True)])}**"
-                for o in OFFSETS) + " |")
+           "1e4, 1e5, 1e6 for whitted and `path`.", ""]
+    names = {"whitted": "whitted", "path": "`path` (max_depth 6)", "direct": "`direct`"}
+    out += _offset_table(pixels, [(names[i], axis, (i, axis)) for i in INTEGRATORS for axis in AXES],
+                         ("integrator", "axis"))
     out += ["", "![far origin](far_origin.png)", "",
             "Mesh files (the floor and the spheres as meshes, a UV sphere of 64 x 32 quads; offset along "
             "(1, 1, 1)): the offset written in the XML's `to_world` (float64 text, removed exactly), or the "
             "vertices stored in world coordinates, in a PLY (float32: the file already rounded them to the "
             "spacing there, 6.1e-5 at 1e3 .. 1 at 1e7; loading moves them exactly but cannot restore the lost "
             "digits) or in an OBJ (17-digit text: the digits are in the file, but Mitsuba's OBJ reader parses "
-            "them into float32 before any transform). Against the same meshes at the origin:", "",
-            "| integrator | vertices | " + " | ".join(f"{o:g} before / after" for o in OFFSETS) + " |",
-            "|---|---|" + "---|" * len(OFFSETS)]
-    for integrator in INTEGRATORS:
-        for storage, label in STORAGE.items():
-            out.append(f"| {integrator} | {label} | " + " | ".join(
-                f"{_pct(meshes[(integrator, storage, o, False)])} / **{_pct(meshes[(integrator, storage, o, True)])}**"
-                for o in OFFSETS) + " |")
+            "them into float32 before any transform). Against the same meshes at the origin:", ""]
+    out += _offset_table(meshes, [(i, label, (i, storage)) for i in INTEGRATORS for storage, label in STORAGE.items()],
+                         ("integrator", "vertices"))
     out += ["", "Render cost: the main kernel's operation count, issue 30's scene at 1e5, as written / camera-"
             "relative (the same kernels; only the data they read changes): " + ", ".join(
                 f"{k} {a} / {b}" for k, (a, b) in ops.items()) + ".", "",

@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 from far_scenes import SEED, far_scene_xml, write_far_scene
 from test_stiff import fraction_off
 
@@ -84,6 +87,37 @@ def test_rule_moves_only_when_the_coordinates_shrink():
     # nothing stated but the sensor (mesh files without to_world): the sensor's distance decides
     assert not recentre_rule(np.array([0.0, 0.0, 0.9 * FAR]), np.zeros((0, 3)))[0]
     assert recentre_rule(np.array([0.0, 0.0, 1.1 * FAR]), np.zeros((0, 3)))[0]
+
+
+#: Coordinates in +-1e7 in steps of 1e-3 (no underflow when scaled by 2^-20).
+COORDINATES = st.integers(-10 ** 10, 10 ** 10).map(lambda i: i / 1000)
+
+
+@given(sensor=hnp.arrays(np.float64, 3, elements=COORDINATES),
+       positions=hnp.arrays(np.float64, st.tuples(st.integers(0, 7), st.just(3)),
+                            elements=st.one_of(COORDINATES, st.sampled_from([np.nan, np.inf, -np.inf]))),
+       scale=st.sampled_from([2.0 ** -20, 0.5, 8.0, 2.0 ** 20]), turn=st.integers(0, 5))
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
+def test_rule_is_its_definition_whatever_the_units_and_axes(sensor, positions, scale, turn):
+    """On arbitrary positions (NaN and inf among them): the decision is the definition (numpy's
+    median of the finite positions' distances), and the same once everything is scaled by a power
+    of two (no unit in the rule, except the fallback without positions) or its axes permuted."""
+    from pointillist.camera_relative import FAR, GAIN, recentre_rule
+
+    moves, reason = recentre_rule(sensor, positions)
+    finite = positions[np.all(np.isfinite(positions), axis=1)]
+    far = np.linalg.norm(sensor)
+    if far == 0:
+        assert not moves
+    elif len(finite):
+        assert moves == bool(far >= GAIN * np.median(np.linalg.norm(finite - sensor, axis=1)))
+        assert recentre_rule(sensor * scale, positions * scale)[0] == moves
+    else:
+        assert moves == bool(far > FAR)
+    order = np.roll(np.arange(3), turn % 3)
+    order = order[::-1] if turn >= 3 else order
+    assert recentre_rule(sensor[order], positions[:, order])[0] == moves
+    assert isinstance(reason, str) and reason
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in SCENES.glob("*.xml")))
