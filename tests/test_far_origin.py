@@ -28,11 +28,11 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 GOAL = 0.005
 
 
-def _render_exr(tmp_path, xml: Path, **kw):
+def _render_exr(tmp_path, xml: Path, suffix: str = "", **kw):
     from pointillist.imaging.io import read_exr
     from pointillist.render import render_file
 
-    out = tmp_path / (xml.stem + ".exr")
+    out = tmp_path / (xml.stem + suffix + ".exr")
     summary = render_file(xml, out, seed=SEED, **kw)
     image, metadata, layers = read_exr(out)
     return image[..., :3].astype(np.float64), metadata, summary
@@ -54,6 +54,21 @@ def test_issue_scene_renders_the_same_far_from_the_origin(mi, tmp_path, integrat
         camera = np.float32(np.array([0.0, 1.6, 5.5]) + offset).astype(np.float64)
         assert meta["origin_offset"] == offset_text(summary.recentring) == ",".join(repr(float(v)) for v in camera)
         assert fraction_off(img, ref) <= GOAL, (integrator, offset)
+
+
+def test_tiles_and_passes_load_camera_relative_too(mi, tmp_path):
+    """Tiles (each loads the scene again) and a render in passes: the far scene renders as the
+    scene at the origin does, and the header records the offset."""
+    offset = "1000000.0,1000001.625,1000005.5"
+    images = {}
+    for where in (0.0, 1e6):
+        xml = write_far_scene(tmp_path, where, integrator="direct")
+        images[where], meta, _ = _render_exr(tmp_path, xml, tiles=(2, 2))
+        assert meta["origin_offset"] == (offset if where else "0.0,0.0,0.0")
+    assert fraction_off(images[1e6], images[0.0]) <= GOAL
+    _, meta, summary = _render_exr(tmp_path, write_far_scene(tmp_path, 1e6, integrator="direct"), "_passes",
+                                   spp=4, pass_spp=2)
+    assert meta["origin_offset"] == offset and summary.progressive is not None and summary.recentring.moved
 
 
 def test_command_line_says_what_it_moved(cli, tmp_path):
