@@ -396,11 +396,19 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     Examples
     --------
     >>> import pointillist
-    >>> from pointillist.scene import instantiate_scene, parse_scene
+    >>> from pointillist.scene import parse_scene
     >>> mi = pointillist.setup()
     >>> parsed = make_camera_relative(parse_scene("scenes/default.xml", {"res": "8"}))
     >>> parsed.recentring.offset, parsed.recentring.moved
     ((0.0, 0.0, 0.0), False)
+    >>> far = '''<scene version="3.0.0"><sensor type="perspective"><transform name="to_world">
+    ...     <lookat origin="1e6, 2, 5" target="1e6, 0, 0" up="0, 1, 0"/></transform></sensor>
+    ...     <shape type="sphere"><point name="center" x="1000000.25" y="0" z="0"/></shape></scene>'''
+    >>> parsed = make_camera_relative(parse_scene("scenes/default.xml", text=far))
+    >>> parsed.recentring.offset
+    (1000000.0, 2.0, 5.0)
+    >>> [float(v) for v in parsed.state.nodes[2].props["center"]]    # 1000000.25 is no float32
+    [0.25, -2.0, -5.0]
     """
     if getattr(parsed, "recentring", None) is not None:
         return parsed
@@ -421,6 +429,9 @@ def make_camera_relative(parsed, *, sensor: int = 0):
         parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, reason)
         return parsed
     offset = np.asarray(where, dtype=np.float32).astype(np.float64)
+    if not offset.any():
+        parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, "the sensor is within float32 rounding of the origin")
+        return parsed
     for index in dict.fromkeys(world + volumes):
         _move_node(nodes[index], offset)
     parsed.recentring = Recentring(tuple(float(v) for v in offset), stated, reason)
