@@ -237,10 +237,10 @@ def load_times(folder: Path, rounds: int, first_rounds: int, bar):
     from tests.far_scenes import write_far_scene
 
     def summary(times):
-        """Medians (before, after), median per-round ratio, ratio of the minima."""
+        """Medians (before, after), median per-round ratio, ratio of the minima, minima (before, after)."""
         return (statistics.median(times[False]), statistics.median(times[True]),
                 statistics.median(a / b for a, b in zip(times[True], times[False])),
-                min(times[True]) / min(times[False]))
+                min(times[True]) / min(times[False]), min(times[False]), min(times[True]))
 
     scenes = sorted((ROOT / "scenes").glob("*.xml")) + [write_far_scene(folder, 1e6, integrator="path")]
     rows = []
@@ -348,21 +348,21 @@ def report(args, pixels, meshes, ops, loads, seconds, load_avg) -> str:
             "relative (the same kernels; only the data they read changes): " + ", ".join(
                 f"{k} {a} / {b}" for k, (a, b) in ops.items()) + ".", "",
             "Load time: `load_scene` against parse + instantiate, interleaved: the first load in a fresh process "
-            f"({args.first_rounds} rounds; what `pointillist render` reports as load; seconds, medians) and repeated "
-            f"loads in one process ({args.rounds} rounds; plugins and files warm, so the step weighs most; "
-            "milliseconds, medians), each with the median per-round ratio and the ratio of the minima (the "
-            "steadier on a loaded machine); the step alone timed on copies of the parsed scene, and its share "
-            "of the first load. Goal: within 10 %:", "",
-            "| scene | moved | first load (s) | ratio: median, minima | repeated load (ms) | ratio: median, "
-            "minima | the step alone (ms) | step / first load |", "|---|---|---|---|---|---|---|---|"]
+            f"({args.first_rounds} rounds; what `pointillist render` reports as load; seconds, medians, with the "
+            "median per-round ratio and the ratio of the minima) and repeated loads in one process (plugins and "
+            f"files warm, so the step weighs most; the fastest of {args.rounds}, milliseconds: medians here swing "
+            "by 10x with the other jobs); the step alone (median, on copies of the parsed scene) and its share of "
+            "the first load. Goal: within 10 %:", "",
+            "| scene | moved | first load (s) | ratio: median, minima | repeated load, fastest (ms) | ratio "
+            "| the step alone (ms) | step / first load |", "|---|---|---|---|---|---|---|---|"]
     for row in loads:
         f, r = row["first"], row["repeat"]
         out.append(f"| {row['scene']} | {'yes' if row['moved'] else 'no'} | {f[0]:.3f} / {f[1]:.3f} | "
-                   f"{f[2]:.3f}, {f[3]:.3f} | {1000 * r[0]:.2f} / {1000 * r[1]:.2f} | {r[2]:.3f}, {r[3]:.3f} | "
+                   f"{f[2]:.3f}, {f[3]:.3f} | {1000 * r[4]:.2f} / {1000 * r[5]:.2f} | {r[3]:.3f} | "
                    f"{1000 * row['step']:.2f} | {100 * row['step'] / f[0]:.1f} % |")
-    out += ["", "Load times on this shared machine swing with the other jobs (a repeated load of these small "
-            "scenes takes 1 ms or, when another job takes the core, 15-25 ms); the step's own time is the "
-            "figure that bounds the cost. Rerun on a quiet machine for the ratios."]
+    out += ["", "On this shared machine a load of these small scenes takes 1 ms, or 15-25 ms when another job "
+            "takes the core; the step's own time is the figure that bounds the cost. Rerun on a quiet machine "
+            "for the ratios."]
     return "\n".join(out)
 
 

@@ -17,7 +17,7 @@ What moves (the nodes of the parsed scene reachable from its root, outside shape
   wherever they are used: media and volume textures look them up at world positions) and the
   ``mip`` integrator, composed on the left with the translation (and added where the plugin reads
   one but the scene gives none, such as a mesh file whose vertices are stored in world
-  coordinates); any other plugin's ``to_world`` when the scene states one;
+  coordinates); another integrator's ``to_world`` when the scene states one;
 - points: sphere ``center``, cylinder ``p0``/``p1``, point light ``position``, ``radiancemeter``
   ``origin``, ``distant`` sensor ``target``. Where a sphere or cylinder states both a point and a
   ``to_world``, the point is folded into the transform in float64.
@@ -133,8 +133,14 @@ class _Node:
         return self.matrix
 
 
+#: The object kinds whose nodes can hold or lead to a position (others are not read: films,
+#: samplers, BSDFs, textures, media; volumes are found wherever they are).
+_READ = frozenset({"Scene", "Shape", "Sensor", "Emitter", "Volume", "Integrator"})
+
+
 def _graph(state) -> list[_Node]:
-    """Every node of ``state`` (a ``mitsuba.parser.ParserState``) as a :class:`_Node`.
+    """Every node of ``state`` (a ``mitsuba.parser.ParserState``) as a :class:`_Node`; the
+    properties of kinds outside :data:`_READ` are left unread (empty).
 
     Property kinds come from the values' Python types (one ``items()`` call per node: asking
     ``props.type`` key by key costs several times more, through Python's enum hashing).
@@ -146,11 +152,15 @@ def _graph(state) -> list[_Node]:
              dr.scalar.Array3f64: "Vector"}
     nodes = []
     for index, node in enumerate(state.nodes):
+        kind = node.type.name
+        if kind not in _READ:
+            nodes.append(_Node(index, kind, "", None, {}, {}, []))
+            continue
         props = node.props
         values = dict(props.items())
         types = {key: kinds.get(type(value), "") for key, value in values.items()}
         children = [values[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
-        nodes.append(_Node(index, node.type.name, props.plugin_name(), props, values, types, children))
+        nodes.append(_Node(index, kind, props.plugin_name(), props, values, types, children))
     return nodes
 
 
@@ -178,7 +188,7 @@ def _apply(matrix: np.ndarray | None, point) -> np.ndarray:
 
 
 def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
-    """Nodes reachable from the root: (in world space, in a shape group's space, volumes anywhere)."""
+    """Nodes reachable from the root: (in world space, in a shape group's space, every volume)."""
     world: dict[int, None] = {}
     local: dict[int, None] = {}
     stack = [(0, True)]
@@ -191,7 +201,7 @@ def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
         node = nodes[index]
         group = node.kind == "Shape" and node.name == "shapegroup"
         stack.extend((child, in_world and not group) for child in reversed(node.children))
-    volumes = [index for index in {**world, **local} if nodes[index].kind == "Volume"]
+    volumes = [node.index for node in nodes if node.kind == "Volume"]
     return list(world), list(local), volumes
 
 
@@ -363,7 +373,7 @@ def _move_node(node: _Node, offset: np.ndarray) -> None:
         return _move_to_world(node, offset, add=name != "batch")
     if kind == "Volume" or (kind == "Integrator" and name == "mip"):
         return _move_to_world(node, offset, add=True)
-    if kind != "Scene":
+    if kind == "Integrator":
         _move_to_world(node, offset, add=False)
 
 
