@@ -116,7 +116,6 @@ class _Node:
     values: dict[str, Any]
     types: dict[str, str]
     children: list[int]
-    matrix: Any = False          # to_world as a float64 array once read (None: the node has none)
 
     def has(self, key: str, kind: str) -> bool:
         return self.types.get(key) == kind
@@ -124,13 +123,11 @@ class _Node:
     def point(self, key: str, default=None) -> np.ndarray | None:
         if not self.has(key, "Vector"):
             return None if default is None else np.asarray(default, dtype=np.float64)
-        return np.array([float(v) for v in self.values[key]], dtype=np.float64)
+        return np.array(list(self.values[key]), dtype=np.float64)
 
-    def to_world(self) -> np.ndarray | None:
-        if self.matrix is False:
-            self.matrix = (np.array(self.values["to_world"].matrix, dtype=np.float64)
-                           if self.has("to_world", "Transform") else None)
-        return self.matrix
+    def to_world(self):
+        """The ``to_world`` the scene states (``mitsuba.ScalarAffineTransform4d``), or None."""
+        return self.values["to_world"] if self.has("to_world", "Transform") else None
 
 
 #: The object kinds whose nodes can hold or lead to a position (others are not read: films,
@@ -164,27 +161,31 @@ def _graph(state) -> list[_Node]:
     return nodes
 
 
-def _transform(matrix: np.ndarray):
+def _shifted(offset: np.ndarray, transform=None, then=None):
+    """translate(-offset) @ transform @ translate(then), composed in float64 by Mitsuba's
+    double-precision transforms (``transform`` and ``then`` optional)."""
     import mitsuba as mi
 
-    return mi.ScalarAffineTransform4d(mi.ScalarMatrix4d(matrix))
+    result = mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*(-offset).tolist()))
+    if transform is not None:
+        result = result @ transform
+    if then is not None:
+        result = result @ mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*then.tolist()))
+    return result
 
 
 def _point3(p: np.ndarray):
     import mitsuba as mi
 
-    return mi.ScalarPoint3d(*(float(v) for v in p))
+    return mi.ScalarPoint3d(*p.tolist())
 
 
-def _translation(offset: np.ndarray) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, 3] = offset
-    return matrix
-
-
-def _apply(matrix: np.ndarray | None, point) -> np.ndarray:
+def _apply(transform, point) -> np.ndarray:
+    """``transform @ point`` in float64 (``transform`` None: the point itself)."""
     point = np.asarray(point, dtype=np.float64)
-    return point if matrix is None else matrix[:3, :3] @ point + matrix[:3, 3]
+    if transform is None:
+        return point
+    return np.array(list(transform @ _point3(point)), dtype=np.float64)
 
 
 def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
@@ -317,10 +318,10 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
 # ------------------------------------------------------------------------------ moving
 def _move_to_world(node: _Node, offset: np.ndarray, *, add: bool) -> None:
     """``to_world`` <- translate(-offset) @ to_world; with ``add``, also where the scene states none."""
-    matrix = node.to_world()
-    if matrix is None and not add:
+    transform = node.to_world()
+    if transform is None and not add:
         return
-    node.props["to_world"] = _transform(_translation(-offset) @ (np.eye(4) if matrix is None else matrix))
+    node.props["to_world"] = _shifted(offset, transform)
 
 
 def _move_point(node: _Node, key: str, offset: np.ndarray) -> None:
@@ -334,20 +335,20 @@ def _move_node(node: _Node, offset: np.ndarray) -> None:
         if name in _CONTAINERS:
             return
         if name == "sphere" and node.has("center", "Vector"):
-            matrix = node.to_world()
-            if matrix is None:
+            transform = node.to_world()
+            if transform is None:
                 return _move_point(node, "center", offset)
             center = node.point("center")
             del props["center"]
-            props["to_world"] = _transform(_translation(-offset) @ matrix @ _translation(center))
+            props["to_world"] = _shifted(offset, transform, center)
             return
         if name == "cylinder" and (node.has("p0", "Vector") or node.has("p1", "Vector")):
             p0, p1 = node.point("p0", (0, 0, 0)), node.point("p1", (0, 0, 1))
-            matrix = node.to_world()
-            if matrix is None:
+            transform = node.to_world()
+            if transform is None:
                 props["p0"], props["p1"] = _point3(p0 - offset), _point3(p1 - offset)
                 return
-            props["to_world"] = _transform(_translation(-offset) @ matrix @ _translation(p0))
+            props["to_world"] = _shifted(offset, transform, p0)
             props["p0"], props["p1"] = _point3(np.zeros(3)), _point3(p1 - p0)
             return
         return _move_to_world(node, offset, add=True)
