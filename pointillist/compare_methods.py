@@ -194,11 +194,13 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
                           params: dict[str, str] | None = None):
     """Load ``scene_path`` with ``method`` swapped in; relative paths resolve as in the file.
 
-    Pointillist must be set up (:func:`pointillist.setup`).
+    Camera-relative where the scene sits far from the origin, as :func:`pointillist.scene.load_scene`
+    loads it. Pointillist must be set up (:func:`pointillist.setup`).
     """
+    from pointillist.camera_relative import make_camera_relative
     from pointillist.scene import check_scene_file, instantiate_scene, parse_scene
 
     path = check_scene_file(scene_path)
     text = configure_scene(path.read_text(), method, value)
     what = f" with {method.name}"
-    return instantiate_scene(parse_scene(path, params, text=text, what=what), what=what)
+    return instantiate_scene(make_camera_relative(parse_scene(path, params, text=text, what=what)), what=what)

@@ -26,7 +26,8 @@ class RenderSummary:
     ``timing`` is a :class:`pointillist.scene.RenderTiming` (for tiles: sums over the
     tiles, ``total`` the wall time); ``where`` says where tiles ran (``None``
     untiled); ``cached`` how many tiles came from the cache; ``progressive`` the
-    :class:`pointillist.progressive.ProgressiveResult` of a render in passes (else ``None``).
+    :class:`pointillist.progressive.ProgressiveResult` of a render in passes (else ``None``);
+    ``recentring`` the :class:`pointillist.camera_relative.Recentring` the scene was loaded with.
     """
 
     exr: Path
@@ -39,6 +40,7 @@ class RenderSummary:
     where: str | None = None
     cached: int = 0
     progressive: Any = None
+    recentring: Any = None
 
 
 def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = None, *, spp: int | None = None,
@@ -68,7 +70,8 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         itself, or lies in a folder that does not exist.
     """
     import pointillist
-    from pointillist.scene import load_scene, scene_info, timed_render
+    from pointillist.camera_relative import make_camera_relative, offset_text
+    from pointillist.scene import instantiate_scene, parse_scene, scene_info, timed_render
 
     params = dict(params or {})
     from pointillist.imaging.io import check_output_path
@@ -82,9 +85,11 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         raise UsageError(str(error)) from None
     pointillist.setup()
     start = time.perf_counter()
-    loaded = load_scene(scene, params)
+    # load_scene's steps, keeping the parsed scene: the header records the offset removed
+    parsed = make_camera_relative(parse_scene(scene, params))
+    loaded = instantiate_scene(parsed)
     load_s = time.perf_counter() - start
-    info = scene_info(loaded)
+    info = dict(scene_info(loaded), origin_offset=offset_text(parsed.recentring))
     png_path = out.with_suffix(".png") if png else None
     progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
                    or checkpoint is not None or resume)
@@ -93,14 +98,17 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         if tiled:
             raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
                              "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
-        return _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png, load_s=load_s,
-                                   time_budget=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp,
-                                   variance_layer=variance_layer, checkpoint=checkpoint, resume=resume)
+        summary = _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png, load_s=load_s,
+                                      time_budget=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp,
+                                      variance_layer=variance_layer, checkpoint=checkpoint, resume=resume)
+        summary.recentring = parsed.recentring
+        return summary
     spp = spp or info["spp"]
     if not tiled:
         image, timing = timed_render(loaded, spp=spp, seed=seed)
         write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png)
-        return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s)
+        return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
+                             recentring=parsed.recentring)
 
     from pointillist.distributed import open_client
     from pointillist.tiles import render_tiled
@@ -116,7 +124,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
                 tile_seeds=f"(seed*{len(result.tiles)}+tile) mod 2^32")
     write_render(out, result.image, loaded, str(scene), meta, timing, png=png)
     return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
-                         tiles=tiles, where=where, cached=result.cached)
+                         tiles=tiles, where=where, cached=result.cached, recentring=parsed.recentring)
 
 
 def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,

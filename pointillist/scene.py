@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
@@ -67,12 +68,15 @@ class ParsedScene:
     positions in float64 as the XML states them, and ``state.files`` (the scene file and every
     ``<include>``). Changing ``state`` before :func:`instantiate_scene` changes the scene Mitsuba
     builds. ``path`` is the scene file, ``params`` the ``-D`` values it was parsed with.
+    ``recentring`` is what :func:`pointillist.camera_relative.make_camera_relative` did to
+    ``state`` (``None`` before it ran).
     """
 
     path: Path
     params: dict[str, str]
     state: Any
     config: Any
+    recentring: Any = None
 
 
 @contextmanager
@@ -141,10 +145,11 @@ def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
 def load_scene(path: str | Path, params: dict[str, str] | None = None):
     """Load a Mitsuba scene file with ``$param`` overrides; errors become one-line UsageErrors.
 
-    :func:`parse_scene` then :func:`instantiate_scene`. The variant must be set and the plugins
-    registered (:func:`pointillist.setup`).
+    :func:`parse_scene`, then the scene re-expressed relative to its first sensor where it sits far
+    from the origin (:mod:`pointillist.camera_relative`), then :func:`instantiate_scene`. The
+    variant must be set and the plugins registered (:func:`pointillist.setup`).
     """
-    return instantiate_scene(parse_scene(path, params))
+    return instantiate_scene(make_camera_relative(parse_scene(path, params)))
 
 
 def check_scene_file(path: str | Path) -> Path:

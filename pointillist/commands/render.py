@@ -76,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
                        checkpoint=args.checkpoint, resume=args.resume)
     info, timing = done.info, done.timing
     print(f"wrote {done.exr}" + (f" and {done.png}" if done.png else ""))
+    if done.recentring is not None and done.recentring.moved:
+        print(f"camera-relative: positions re-expressed relative to {info['origin_offset']} "
+              f"({done.recentring.reason}; EXR header origin_offset)")
     if done.progressive is not None:
         result, stats = done.progressive, done.progressive.stats
         print(f"{info['width']}x{info['height']}, integrator {info['integrator']}, sampler {info['sampler']}: "
