@@ -65,7 +65,7 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, UInt32
+from drjit.llvm import Float, Float64, UInt32
 
 from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, to_numpy
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_decode
@@ -142,6 +142,16 @@ class FlipResult(NamedTuple):
     exposures: tuple[float, float, int] | None
 
 
+def _exp32(x: Any) -> np.float32:
+    """``expf``: exp of a float32, correctly rounded (computed in float64), as glibc's is in practice."""
+    return _f32(np.exp(np.float64(x)))
+
+
+def _pow32(x: Any, y: Any) -> np.float32:
+    """``powf``, correctly rounded in the same way."""
+    return _f32(np.float64(x) ** np.float64(y))
+
+
 def _check_tonemapper(tonemapper: Any) -> str:
     if not isinstance(tonemapper, str) or tonemapper.lower() not in TONEMAPPERS:
         raise ValueError(f"tonemapper: expected one of {', '.join(map(repr, TONEMAPPERS))}, got {tonemapper!r}")
@@ -156,7 +166,7 @@ def tonemapper_x_max(tonemapper: str = "aces", t: float = 0.85) -> float:
     Examples
     --------
     >>> round(tonemapper_x_max("aces"), 4), round(tonemapper_x_max("reinhard"), 4)
-    (2.1191, 5.6667)
+    (2.1189, 5.6667)
     """
     c = [_f32(v) for v in TONEMAPPERS[_check_tonemapper(tonemapper)]]
     t = _f32(t)
@@ -234,11 +244,10 @@ def _filters(ppd: float) -> dict[str, Any]:
     radius = int(math.ceil(_f32(3.0) * np.sqrt(largest / (_f32(2.0) * pi_sq), dtype=np.float32) * ppd32))
 
     def gaussian(x2, a, b):  # a sqrt(pi / b) exp(-pi^2 x^2 / b)
-        return a * np.sqrt(pi / b, dtype=np.float32) * np.exp(-pi_sq * x2 / b, dtype=np.float32)
+        return a * np.sqrt(pi / b, dtype=np.float32) * _exp32(-pi_sq * x2 / b)
 
     def gaussian_sqrt(x2, a, b):  # the square root of the weight: one factor of the separated 2-D filter
-        return np.sqrt(a * np.sqrt(pi / b, dtype=np.float32), dtype=np.float32) * np.exp(-pi_sq * x2 / b,
-                                                                                       dtype=np.float32)
+        return np.sqrt(a * np.sqrt(pi / b, dtype=np.float32), dtype=np.float32) * _exp32(-pi_sq * x2 / b)
 
     dx = _f32(1.0) / ppd32
     taps = {"y": [], "cx": [], "cz1": [], "cz2": []}
@@ -262,7 +271,7 @@ def _filters(ppd: float) -> dict[str, Any]:
     g_sum = dg_pos = dg_neg = ddg_pos = ddg_neg = _f32(0.0)
     for x in range(2 * feature_radius + 1):
         xx = _f32(x - feature_radius)
-        gv = np.exp(-(xx * xx) / (_f32(2.0) * sigma * sigma), dtype=np.float32)
+        gv = _exp32(-(xx * xx) / (_f32(2.0) * sigma * sigma))
         g_sum = _f32(g_sum + gv)
         dgv = -xx * gv
         if dgv > 0:
@@ -300,6 +309,16 @@ _XYZ_TO_RGB = ((3.241003275, -1.537398934, -0.498615861),
                (0.055639423, -0.204011202, 1.057148933))
 
 
+#: flip-evaluator's cube root: powf(t, 1.0f / 3.0f).
+_THIRD = float(_f32(1.0) / _f32(3.0))
+
+
+def _powf(x: Float, y: Any) -> Float:
+    """``powf`` on the device: the power in float64 (Dr.Jit's float32 ``power`` is exp2(y log2 x), a few
+    ulp off), rounded to float32; x >= 0 (0 gives 0 for y > 0)."""
+    return Float(dr.power(Float64(x), Float64(y) if isinstance(y, Float) else y))
+
+
 def _matrix(m, a, b, c):
     return [m[i][0] * a + m[i][1] * b + m[i][2] * c for i in range(3)]
 
@@ -319,10 +338,14 @@ def _lab_values(x, y, z):
     term = _f32(4.0) / _f32(29.0)
 
     def f(t):
-        return dr.select(t > float(cube), dr.cbrt(t), float(factor) * t + float(term))
+        return dr.select(t > float(cube), _powf(t, _THIRD), float(factor) * t + float(term))
 
     fx, fy, fz = f(x), f(y), f(z)
     return 116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)
+
+
+_ONE_OVER_116 = float(_f32(1.0) / _f32(116.0))
+_SIXTEEN_OVER_116 = float(_f32(16.0) / _f32(116.0))
 
 
 def _clamp01(value):
@@ -352,15 +375,15 @@ def _colour_limits() -> tuple[float, float]:
         m = np.array(_RGB_TO_XYZ, np.float32)
         xyz = (m @ np.array(rgb, np.float32)).astype(np.float32) * np.array(_INV_D65, np.float32)
         delta = _f32(6.0) / _f32(29.0)
-        f = np.where(xyz > delta ** 3, np.cbrt(xyz), xyz / (_f32(3.0) * delta * delta) + _f32(4.0) / _f32(29.0))
-        f = f.astype(np.float32)
+        f = [_pow32(t, _THIRD) if t > delta * delta * delta else t * (_f32(1.0) / (_f32(3.0) * delta * delta))
+             + _f32(4.0) / _f32(29.0) for t in xyz]
         L, a, b = _f32(116.0) * f[1] - _f32(16.0), _f32(500.0) * (f[0] - f[1]), _f32(200.0) * (f[1] - f[2])
         return L, _f32(0.01) * L * a, _f32(0.01) * L * b
 
     green, blue = lab((0.0, 1.0, 0.0)), lab((0.0, 0.0, 1.0))
     distance = abs(green[0] - blue[0]) + np.sqrt((green[1] - blue[1]) ** 2 + (green[2] - blue[2]) ** 2,
                                                  dtype=np.float32)
-    cmax = _f32(distance) ** _f32(FLIP_CONSTANTS["qc"])
+    cmax = _pow32(distance, _f32(FLIP_CONSTANTS["qc"]))
     return float(cmax), float(_f32(FLIP_CONSTANTS["pc"]) * cmax)
 
 
@@ -409,84 +432,78 @@ def _pass_colour(images: list[Float], frame: _Frame, lanes: int, batch: int, sca
                        for v in rgb]
         outputs += list(_ycxcz(*(_clamp01(v) for v in rgb)))
     dr.eval(*outputs)
-    return [o.numpy() for o in outputs]
+    return [o.numpy() for o in outputs]   # before the views die: their release waits for the kernel
 
 
-def _weight(value: float) -> float:
-    return value
-
-
-def _pass_horizontal(ycxcz: list[Float], filters: dict, lanes: int) -> list[Float]:
-    """Pass 2: the horizontal colour filters (Y, Cx, Cz twice) and feature filters (g, dg, ddg of y)."""
-    R, Rf = filters["radius"], filters["feature_radius"]
-    R = max(R, Rf)
-    spatial, feature = filters["spatial"], filters["feature"]
+def _taps(filters: dict, frame_radius: int) -> list[tuple[dict[str, float], dict[str, float]]]:
+    """Per tap ``j`` of a window of radius ``frame_radius``: the colour and the feature filters' weights
+    there (empty where the narrower filter has no tap). The weights are kernel literals: the kernels
+    compile once per ``ppd``."""
     rs, rf = filters["radius"], filters["feature_radius"]
+    taps = []
+    for j in range(2 * frame_radius + 1):
+        ks, kf = j - frame_radius + rs, j - frame_radius + rf
+        spatial = {name: w[ks] for name, w in filters["spatial"].items()} if 0 <= ks <= 2 * rs else {}
+        feature = {name: w[kf] for name, w in filters["feature"].items()} if 0 <= kf <= 2 * rf else {}
+        taps.append((spatial, feature))
+    return taps
+
+
+def _pass_horizontal(ycxcz: list[np.ndarray], filters: dict, frame: _Frame, lanes: int) -> list[np.ndarray]:
+    """Pass 2, per image: the horizontal colour filters (Y, Cx, and Cz by both of its Gaussians) and the
+    feature filters (dg, ddg, g) of the normalised luminance ``y = (Y + 16) / 116``; tap ``j`` of lane
+    ``i`` reads element ``i + j``."""
     outputs = []
     for image in range(2):
         source = ycxcz[3 * image:3 * image + 3]
         sums = [Float(0.0) for _ in range(7)]
-        for j in range(2 * R + 1):
-            Y, Cx, Cz = (Float(s[j:j + lanes]) for s in source)
-            k = j - R + rs
-            if 0 <= k <= 2 * rs:
-                sums[0] = dr.fma(_weight(spatial["y"][k]), Y, sums[0])
-                sums[1] = dr.fma(_weight(spatial["cx"][k]), Cx, sums[1])
-                sums[2] = dr.fma(_weight(spatial["cz1"][k]), Cz, sums[2])
-                sums[3] = dr.fma(_weight(spatial["cz2"][k]), Cz, sums[3])
-            k = j - R + rf
-            if 0 <= k <= 2 * rf:
-                y = Y * _f(1.0 / 116.0) + _f(16.0 / 116.0)
-                sums[4] = dr.fma(_weight(feature["dg"][k]), y, sums[4])
-                sums[5] = dr.fma(_weight(feature["ddg"][k]), y, sums[5])
-                sums[6] = dr.fma(_weight(feature["g"][k]), y, sums[6])
+        for j, (spatial, feature) in enumerate(_taps(filters, frame.R)):
+            Y, Cx, Cz = (Float(channel[j:j + lanes]) for channel in source)
+            if spatial:                  # a product then a sum, in tap order, as flip-evaluator adds
+                sums[0] = sums[0] + spatial["y"] * Y
+                sums[1] = sums[1] + spatial["cx"] * Cx
+                sums[2] = sums[2] + spatial["cz1"] * Cz
+                sums[3] = sums[3] + spatial["cz2"] * Cz
+            if feature:
+                y = Y * _ONE_OVER_116 + _SIXTEEN_OVER_116
+                sums[4] = sums[4] + feature["dg"] * y
+                sums[5] = sums[5] + feature["ddg"] * y
+                sums[6] = sums[6] + feature["g"] * y
         outputs += sums
     dr.eval(*outputs)
-    return [o.numpy() for o in outputs]
+    return [o.numpy() for o in outputs]   # before the views die: their release waits for the kernel
 
 
-def _pass_vertical(rows: list[Float], filters: dict, frame: _Frame, lanes: int) -> Float:
-    """Pass 3: the vertical filters, the colour and feature differences and the FLIP error."""
-    R = max(filters["radius"], filters["feature_radius"])
-    spatial, feature = filters["spatial"], filters["feature"]
-    rs, rf = filters["radius"], filters["feature_radius"]
-    Pw = frame.Pw
+def _pass_vertical(rows: list[np.ndarray], filters: dict, frame: _Frame, lanes: int) -> np.ndarray:
+    """Pass 3: the vertical filters (tap ``j`` of lane ``i`` reads element ``i + j Pw``), the colour
+    difference (Hunt-adjusted HyAB), the feature difference and the FLIP error."""
     lab, edges, points = [], [], []
     for image in range(2):
         source = rows[7 * image:7 * image + 7]
         s = [Float(0.0) for _ in range(8)]
-        for j in range(2 * R + 1):
-            tap = [None] * 7
-
-            def view(c):
-                if tap[c] is None:
-                    tap[c] = Float(source[c][j * Pw:j * Pw + lanes])
-                return tap[c]
-
-            k = j - R + rs
-            if 0 <= k <= 2 * rs:
-                s[0] = dr.fma(_weight(spatial["y"][k]), view(0), s[0])
-                s[1] = dr.fma(_weight(spatial["cx"][k]), view(1), s[1])
-                s[2] = dr.fma(_weight(spatial["cz1"][k]), view(2), s[2])
-                s[3] = dr.fma(_weight(spatial["cz2"][k]), view(3), s[3])
-            k = j - R + rf
-            if 0 <= k <= 2 * rf:
-                g = _weight(feature["g"][k])
-                s[4] = dr.fma(g, view(4), s[4])                               # dx: dg(x) then g(y)
-                s[5] = dr.fma(g, view(5), s[5])                               # ddx
-                s[6] = dr.fma(_weight(feature["dg"][k]), view(6), s[6])       # dy: g(x) then dg(y)
-                s[7] = dr.fma(_weight(feature["ddg"][k]), view(6), s[7])      # ddy
+        for j, (spatial, feature) in enumerate(_taps(filters, frame.R)):
+            start = j * frame.Pw
+            if spatial:
+                for c, name in enumerate(("y", "cx", "cz1", "cz2")):
+                    s[c] = s[c] + spatial[name] * Float(source[c][start:start + lanes])
+            if feature:
+                dx, ddx, gx = (Float(source[c][start:start + lanes]) for c in (4, 5, 6))
+                s[4] = s[4] + feature["g"] * dx          # d/dx: dg across, g down
+                s[5] = s[5] + feature["g"] * ddx         # d2/dx2
+                s[6] = s[6] + feature["dg"] * gx         # d/dy: g across, dg down
+                s[7] = s[7] + feature["ddg"] * gx        # d2/dy2
         lab.append(_hunt_lab(s[0], s[1], s[2] + s[3]))
         edges.append(dr.sqrt(s[4] * s[4] + s[6] * s[6]))
         points.append(dr.sqrt(s[5] * s[5] + s[7] * s[7]))
-    cmax, pccmax = _colour_limits()
-    pt = _f(FLIP_CONSTANTS["pt"])
-    colour = dr.power(_hyab(*lab), _f(FLIP_CONSTANTS["qc"]))
-    colour = dr.select(colour < pccmax, colour * _f(pt / pccmax),
-                       pt + ((colour - pccmax) / _f(cmax - pccmax)) * _f(1.0 - pt))
+    cmax, pccmax = (_f32(v) for v in _colour_limits())
+    pt = _f32(FLIP_CONSTANTS["pt"])
+    colour = _powf(_hyab(*lab), _f(FLIP_CONSTANTS["qc"]))
+    colour = dr.select(colour < float(pccmax), colour * float(pt / pccmax),
+                       float(pt) + ((colour - float(pccmax)) / float(cmax - pccmax)) * float(_f32(1.0) - pt))
     difference = select_max(dr.abs(edges[0] - edges[1]), dr.abs(points[0] - points[1]))
-    feature_error = dr.power(_f(1.0 / math.sqrt(2.0)) * difference, _f(FLIP_CONSTANTS["qf"]))
-    error = dr.power(colour, 1.0 - feature_error)
+    normalisation = float(_f32(1.0) / np.sqrt(_f32(2.0), dtype=np.float32))
+    feature_error = _powf(normalisation * difference, _f(FLIP_CONSTANTS["qf"]))
+    error = _powf(colour, 1.0 - feature_error)
     dr.eval(error)
     return error.numpy()
 
@@ -498,7 +515,7 @@ def _ldr_flip_batch(test: Float, reference: Float, frame: _Frame, filters: dict,
     n2 = n3 + 2 * frame.R * frame.Pw
     n1 = n2 + 2 * frame.R
     ycxcz = _pass_colour([reference, test], frame, n1, batch, scales, tonemapper)
-    rows = _pass_horizontal(ycxcz, filters, n2)
+    rows = _pass_horizontal(ycxcz, filters, frame, n2)
     del ycxcz
     error = _pass_vertical(rows, filters, frame, n3)
     del rows
@@ -566,7 +583,7 @@ def flip(image: Any, reference: Any, *, dynamic_range: str = "hdr", ppd: float =
     >>> result.exposures                    # a constant reference: one exposure, taken twice
     (2.0832972526550293, 2.0832972526550293, 2)
     >>> round(float(np.asarray(result.map)[8, 8]), 3), round(float(np.asarray(result.map)[0, 0]), 3)
-    (0.754, 0.0)
+    (0.27, 0.0)
     """
     if not isinstance(dynamic_range, str) or dynamic_range.lower() not in ("hdr", "ldr"):
         raise ValueError(f"dynamic_range: expected 'hdr' or 'ldr', got {dynamic_range!r}")
@@ -616,7 +633,7 @@ def flip(image: Any, reference: Any, *, dynamic_range: str = "hdr", ppd: float =
         count = int(num_exposures) if num_exposures is not None else int(max(_f32(2.0), np.ceil(stop - start)))
         step = (stop - start) / _f32(count - 1) if count > 1 else _f32(0.0)
         levels = [start + _f32(i) * step for i in range(count)]
-        scales = np.array([_f32(2.0) ** level for level in levels], np.float32)
+        scales = np.array([_pow32(2.0, level) for level in levels], np.float32)
         batch = max(1, _BATCH_LANES // frame.P)
         for first in range(0, count, batch):
             chunk = scales[first:first + batch]
