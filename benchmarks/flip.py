@@ -126,22 +126,11 @@ def interleaved(work: dict, repeats: int) -> tuple[dict, dict, dict]:
     return ours_t, peer_t, last
 
 
-def kernel_profile(test, reference, mode, calls: int = 3) -> tuple[int, float, bool]:
+def kernel_profile(test, reference, mode) -> tuple[int, float, bool]:
     """(JIT kernel launches per call, least summed execution time in s, all from the in-memory cache)."""
-    ours(test, reference, mode)
-    launches, execute, cached = 0, float("inf"), True
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        for _ in range(calls):
-            dr.kernel_history()
-            ours(test, reference, mode)
-            history = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
-            launches = len(history)
-            execute = min(execute, sum(k.get("execution_time", 0.0) for k in history) / 1e3)
-            cached = cached and all(k.get("cache_hit", False) for k in history)
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return launches, execute, cached
+    from imaging_tone import kernel_profile as profile   # the one kernel-history profiler of the benchmarks
+
+    return profile(lambda: ours(test, reference, mode), calls=3)
 
 
 FIRST_CALL = r"""
@@ -256,10 +245,14 @@ def main() -> int:
         "process and tone mapper, and per pixels-per-degree value (the filter weights are kernel constants).",
         "",
         "Kernels: three per batch of exposures (colour transform of the padded frames, horizontal pass, vertical "
-        "pass and error), all exposures of a 256^2 or 512^2 render in one or a few batches (2^21 lanes each); "
-        "exec = their summed execution time, the least over 3 calls. The rest of a call is host work (exposure "
-        "range: a median by partition; the maximum over exposures) and Python tracing (about 3-5 ms of one "
-        "thread's time per batch).",
+        "pass and error), the exposures of a render in one batch or a few (at most 2^21 lanes each: 26 exposures "
+        "of a 256^2 image, 7 of a 512^2 one); LDR adds the sRGB decoding of the two images (2 kernels). exec = "
+        "their summed execution time, the least over 3 calls. The rest of a call is host work (the exposure "
+        "range: a median by partition; the largest error over the exposures) and Python tracing (about 3-5 ms "
+        "of one thread's time per batch). mean diff is against flip-evaluator's own mean, which it sums in "
+        "float32 (its map's float64 mean is within 1e-8 of ours, tests/test_flip.py); the map differences are "
+        "per pixel. flip-evaluator's time is the faster of 1 and 2 OpenMP threads: on this loaded machine its "
+        "two threads often wait for each other at the barriers, and one thread was sometimes faster.",
     ]
     table = "\n".join(lines)
     print(table)
