@@ -170,8 +170,27 @@ def main() -> int:
     return 0
 
 
-#: Written under the table by --write (edit with the measured figures).
-NOTES = """What remains of a rerun once the scores are kept is not scoring; see the notes below the table."""
+#: Written under the tables by --write: this run's reading (2026-12-01, load average 5-13 on 2 cores).
+NOTES = """Issue 32 goals, this run (loaded machine; the issue's own figures were quiet: a 10.8 s fresh sweep, 57 % of
+it scoring, a rerun of 7.8 s = 0.73x):
+
+- Scoring at most 25 % of a fresh sweep: **met**, 15-16 % with FLIP on Dr.Jit (1.96-2.40 s for the 12 renders
+  and the page's maps), against 75 % with flip-evaluator in the same run (32.9 s: its two OpenMP threads wait
+  for each other at every barrier on an oversubscribed machine, so its loaded share is above the quiet 57 %).
+- A rerun with every render cached at most 0.15x the fresh sweep: **not met**, 0.45x (6.95 s against 15.31 s;
+  0.77x before issue 32 in this run). The rerun scores nothing now (0.00 s in the metrics; loading the 12
+  stored records and maps, the "renders + scoring" stage, takes 0.14 s). What is left is writing the outputs
+  again and starting up: the two matplotlib plots 3.64 s (52 % of the rerun, matplotlib's import and
+  tight_layout included), start-up and imports 0.95 s, the scene check before any render (Mitsuba set-up and
+  scene load) 0.82 s, report.html 0.61 s, and about 0.8 s of interpreter start, argument parsing and exit.
+  Bound as compare writes its outputs today: about 6 s, 0.40x. The design change that would lift it: keep a
+  digest of what the outputs are made from (every record's scores and times, the reference's digest, the notes)
+  beside results.csv and report.html and leave results.md, the plots and the page alone when it matches (a
+  rerun is then start-up, the scene check and loading the records: about 2.7 s, 0.18x here); and, when every
+  render is cached, take the render size from the stored reference record instead of loading the scene with
+  Mitsuba (0.8 s less: about 1.9 s, 0.12x). Both belong to compare's outputs (compare.py, compare_report.py,
+  compare_html.py), outside the scores' storage that this change was limited to while issue 26 changes
+  compare's cache key."""
 
 
 if __name__ == "__main__":
