@@ -388,7 +388,9 @@ def srgb_decode_values(values: Float) -> Float:
 
     colour-science calls it ``eotf_sRGB``."""
     values = dr.select(dr.isnan(values), 0.0, values)
-    base = (dr.maximum(values, SRGB_ENCODED_THRESHOLD) + SRGB_OFFSET) * (1.0 / SRGB_SCALE)
+    # a division, not a product with 1 / 1.055 (which rounds): 1 + 0.055 and 1.055 are the same float32,
+    # so white decodes to exactly 1
+    base = (dr.maximum(values, SRGB_ENCODED_THRESHOLD) + SRGB_OFFSET) / SRGB_SCALE
     return dr.select(values <= SRGB_ENCODED_THRESHOLD, values * (1.0 / SRGB_SLOPE), dr.power(base, SRGB_EXPONENT))
 
 

@@ -5,7 +5,9 @@ estimate imitates without a reference):
 
 - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
 - ``relmse = mean((x - r)^2 / (r^2 + epsilon))``, epsilon = :data:`RELMSE_EPSILON`;
-- ``flip``: the mean of HDR-FLIP (Andersson et al. 2021, flip-evaluator), linear sRGB input.
+- ``flip``: the mean of HDR-FLIP (Andersson et al. 2021), linear sRGB input, computed on Dr.Jit by
+  :func:`pointillist.imaging.flip.flip` (``flip_backend="flip-evaluator"`` runs NVIDIA's package
+  instead: the reference the tests hold the Dr.Jit implementation to).
 
 Notes
 -----
@@ -21,13 +23,14 @@ argument        domain                           what happens
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
+from pointillist.imaging.flip import flip as _flip_drjit
+from pointillist.imaging.flip import tonemapper_x_max
 
-__all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "image_errors", "error_maps", "as_rgb"]
+__all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "FLIP_BACKENDS", "image_errors", "error_maps", "as_rgb"]
 
 #: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
 RELMSE_EPSILON = 0.01
@@ -39,6 +42,10 @@ RELMSE_EPSILON = 0.01
 #: on black). Below twice that, :func:`_flip_exposures` passes the exposure itself.
 FLIP_MIN_LUMINANCE = 2.0 * float(np.finfo(np.float32).eps)
 
+#: The implementations of FLIP: ``"drjit"`` (:func:`pointillist.imaging.flip.flip`, the default) and
+#: ``"flip-evaluator"`` (NVIDIA's package, the reference that the tests check the first against).
+FLIP_BACKENDS = ("drjit", "flip-evaluator")
+
 
 def as_rgb(image: np.ndarray) -> np.ndarray:
     """``image`` as float64 (H, W, 3): grey (H, W) repeated into RGB, extra channels (alpha) dropped."""
@@ -49,15 +56,17 @@ def as_rgb(image: np.ndarray) -> np.ndarray:
 
 
 def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
-                 maps: dict[str, np.ndarray] | None = None) -> dict[str, float]:
+                 maps: dict[str, np.ndarray] | None = None, flip_backend: str = "drjit") -> dict[str, float]:
     """RMSE, relative MSE and HDR-FLIP of ``image`` against ``reference``.
 
     - ``rmse = sqrt(mean((x - r)^2))`` over all pixels and RGB channels;
     - ``relmse = mean((x - r)^2 / (r^2 + 0.01))`` (:data:`RELMSE_EPSILON`);
-    - ``flip``: mean HDR-FLIP (flip-evaluator, linear sRGB input, default viewing
-      conditions), NaN values and negatives set to 0 first. Where flip-evaluator would
-      exit the process (a black, constant or nearly black reference) the exposure is
-      passed explicitly (:func:`_flip_exposures`), so every reference gets a value.
+    - ``flip``: mean HDR-FLIP (linear sRGB input, default viewing conditions), NaN
+      values and negatives set to 0 and values above 1e4 to 1e4 first, computed by
+      ``flip_backend`` (:data:`FLIP_BACKENDS`: ``"drjit"``, :func:`pointillist.imaging.flip.flip`,
+      or ``"flip-evaluator"``). Where the reference has no exposure range of its own (a
+      black, constant or nearly black one: flip-evaluator would exit the process) the
+      exposure is passed explicitly (:func:`_flip_exposures`), so every reference gets a value.
 
     Non-finite pixels of ``image`` make RMSE and relative MSE non-finite (they are
     reported, not hidden). Grey (H, W) images are compared as RGB. A ``maps`` dict
@@ -72,6 +81,8 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
     >>> round(e["rmse"], 6), round(e["relmse"], 6)
     (0.1, 0.038462)
     """
+    if flip_backend not in FLIP_BACKENDS:
+        raise ValueError(f"flip_backend: expected one of {', '.join(map(repr, FLIP_BACKENDS))}, got {flip_backend!r}")
     x, r = _pair(image, reference)
     diff2 = (x - r) ** 2
     relative = diff2 / (r * r + RELMSE_EPSILON)
@@ -79,18 +90,19 @@ def image_errors(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
     if maps is not None:
         maps["relmse"] = relative.mean(axis=2).astype(np.float32)
     if flip:
-        flip_map, result["flip"] = _flip(x, r)
+        flip_map, result["flip"] = _flip(x, r, flip_backend)
         if maps is not None:
             maps["flip"] = flip_map
     return result
 
 
-def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -> dict[str, np.ndarray]:
+def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True,
+               flip_backend: str = "drjit") -> dict[str, np.ndarray]:
     """Per-pixel errors of ``image`` against ``reference``: (H, W) float32 maps.
 
     - ``relmse``: ``mean over RGB of (x - r)^2 / (r^2 + 0.01)``; its mean over the
       pixels is :func:`image_errors`' ``relmse``;
-    - ``flip`` (with ``flip``): the HDR-FLIP error map in [0, 1] (flip-evaluator, the
+    - ``flip`` (with ``flip``): the HDR-FLIP error map in [0, 1] (by ``flip_backend``, the
       input cleaned as in :func:`image_errors`); its mean is the ``flip`` there.
 
     Examples
@@ -101,7 +113,7 @@ def error_maps(image: np.ndarray, reference: np.ndarray, *, flip: bool = True) -
     [[1.0, 3.0]]
     """
     maps: dict[str, np.ndarray] = {}
-    image_errors(image, reference, flip=flip, maps=maps)
+    image_errors(image, reference, flip=flip, maps=maps, flip_backend=flip_backend)
     return maps
 
 
@@ -114,43 +126,36 @@ def _pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndar
     return x, r
 
 
-def _flip(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
-    """HDR-FLIP of ``x`` against ``r``: the (H, W) map and its mean."""
-    import flip_evaluator
-
+def _flip(x: np.ndarray, r: np.ndarray, backend: str) -> tuple[np.ndarray, float]:
+    """HDR-FLIP of ``x`` against ``r`` by ``backend``: the (H, W) map and its mean."""
     def clean(a):
         return np.ascontiguousarray(np.clip(np.nan_to_num(a, nan=0.0, posinf=1e4), 0.0, 1e4), dtype=np.float32)
 
-    reference = clean(r)
-    error_map, mean, _ = flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,
-                                                 **_flip_exposures(reference))
-    return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
+    reference, test = clean(r), clean(x)
+    exposure = _flip_exposures(reference)
+    if backend == "flip-evaluator":
+        import flip_evaluator
+
+        parameters = {} if exposure is None else {"startExposure": exposure, "stopExposure": exposure}
+        error_map, mean, _ = flip_evaluator.evaluate(reference, test, "HDR", applyMagma=False, parameters=parameters)
+        return np.asarray(error_map, np.float32).reshape(x.shape[:2]), float(mean)
+    result = _flip_drjit(test, reference, dynamic_range="hdr", start_exposure=exposure, stop_exposure=exposure)
+    return np.asarray(result.map), result.mean
 
 
-def _flip_exposures(reference: np.ndarray) -> dict[str, Any]:
-    """HDR-FLIP's own exposure range, except where flip-evaluator would exit the process.
+def _flip_exposures(reference: np.ndarray) -> float | None:
+    """None (HDR-FLIP's own exposure range), or the one exposure to use where there is none.
 
-    flip-evaluator takes start = log2(x_max / Y_max) and stop = log2(x_max / Y_median) from the
-    reference's luminance and calls ``exit`` ("Start exposure must be smaller than stop exposure!")
-    when rounding puts start above stop (a constant reference of 1e-7) or the reference is black.
-    In those cases (median luminance = maximum) both are passed explicitly as the one exposure
-    log2(x_max / Y_max) (0 for a black reference), which is what flip-evaluator uses when they tie.
-    So are references whose maximum is below :data:`FLIP_MIN_LUMINANCE` (the median is taken
-    as at least FLT_EPSILON there: one pixel of 1e-30 on black exited the process too).
+    HDR-FLIP takes start = log2(x_max / Y_max) and stop = log2(x_max / max(Y_median, FLT_EPSILON))
+    from the reference's luminance; flip-evaluator calls ``exit`` ("Start exposure must be smaller
+    than stop exposure!") when start exceeds stop (a constant reference of 1e-7, a black one), and
+    :func:`pointillist.imaging.flip.flip` raises. Where the median luminance is the maximum
+    (rounding may put the start above the stop) or the maximum is below :data:`FLIP_MIN_LUMINANCE`,
+    the one exposure log2(x_max / Y_max) (0 for a black reference) is passed as both start and stop,
+    which is what HDR-FLIP uses when they tie.
     """
     luminance = reference @ np.array(REC709_LUMINANCE_WEIGHTS, np.float32)
     y_max, y_median = float(luminance.max()), float(np.median(luminance))
     if y_median < y_max * (1 - 1e-5) and y_max >= FLIP_MIN_LUMINANCE:
-        return {}
-    exposure = math.log2(_FLIP_ACES_X_MAX / y_max) if y_max > 0 else 0.0
-    return {"parameters": {"startExposure": exposure, "stopExposure": exposure}}
-
-
-def _aces_x_max(t: float = 0.85) -> float:
-    """HDR-FLIP's x_max: where the ACES fit (with FLIP's 0.6 pre-exposure) reaches t (Andersson et al. 2021)."""
-    k0, k1, k2, k3, k4, k5 = 0.36 * 2.51, 0.6 * 0.03, 0.0, 0.36 * 2.43, 0.6 * 0.59, 0.14
-    c0, c1 = (k1 - k4 * t) / (k0 - k3 * t), (k2 - k5 * t) / (k0 - k3 * t)
-    return -0.5 * c0 + math.sqrt(0.25 * c0 * c0 - c1)
-
-
-_FLIP_ACES_X_MAX = _aces_x_max()
+        return None
+    return math.log2(tonemapper_x_max("aces") / y_max) if y_max > 0 else 0.0

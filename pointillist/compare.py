@@ -7,7 +7,10 @@ renders with :func:`pointillist.scene.timed_render`, writes ``renders/<task>.exr
 and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose EXR
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
-(:func:`pointillist.imaging.metrics.image_errors`), and :func:`pointillist.compare_report.write_report` writes
+(:func:`pointillist.imaging.metrics.image_errors`) and kept with the render (the scores in its
+record, the per-pixel maps of a seed-0 render in ``renders/<task>.maps.npz``, keyed by the
+render and the reference: :func:`scores_key`), so a rerun scores only what changed; and
+:func:`pointillist.compare_report.write_report` writes
 ``results.csv``, ``results.md`` and the two log-log plots, and
 :func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
 maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
@@ -33,7 +36,7 @@ from pointillist.errors import UsageError
 
 __all__ = [
     "Task", "RenderRecord", "render_one", "task_paths", "render_reference",
-    "run_sweep",
+    "run_sweep", "scores_key", "maps_path", "SCORES_VERSION",
     "compare_task", "prerender_sweep", "CompareResult", "sweep_tasks", "compare_scene",
     "DEFAULT_SPP", "DEFAULT_METHODS", "REFERENCE_SAMPLER", "REFERENCE_SEED",
 ]
@@ -79,7 +82,9 @@ class RenderRecord:
     render before a method's first render in a process (0 without one) and
     ``warm_up_compile`` its JIT compilation (:func:`render_one`).
     ``spp`` is the samples per pixel actually taken (the sampler may round the
-    requested count; adaptive methods report their mean).
+    requested count; adaptive methods report their mean). ``rmse``, ``relmse`` and
+    ``flip`` are the errors against the reference once scored (:func:`run_sweep`), and
+    ``scores_key`` says against what (:func:`scores_key`; empty while unscored).
     """
 
     method: str
@@ -103,6 +108,7 @@ class RenderRecord:
     rmse: float = math.nan
     relmse: float = math.nan
     flip: float = math.nan
+    scores_key: str = ""
 
     @property
     def mse(self) -> float:
@@ -138,6 +144,55 @@ def _write_json(path: Path, data: dict) -> None:
     from pointillist.imaging.io import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
+
+#: The definition of the stored scores: bump it when a score is defined or computed differently
+#: (relMSE's epsilon, FLIP's implementation), so that scores stored by an older version are computed again.
+SCORES_VERSION = 1
+
+
+def scores_key(render: str | os.PathLike, reference_digest: str) -> str:
+    """What a render's stored scores are valid for: the render file (its size and modification time,
+    so a render written again is scored again), the reference's pixels (``reference_digest``, see
+    :func:`image_digest`) and :data:`SCORES_VERSION` with the FLIP implementation; a SHA-256 (hex)."""
+    from pointillist.imaging.metrics import FLIP_BACKENDS, RELMSE_EPSILON
+
+    stat = Path(render).stat()
+    return json_key({"render": [stat.st_size, stat.st_mtime_ns], "reference": reference_digest,
+                     "version": SCORES_VERSION, "relmse_epsilon": RELMSE_EPSILON, "flip": FLIP_BACKENDS[0]})
+
+
+def image_digest(image: np.ndarray) -> str:
+    """BLAKE2b (hex) of an image's shape, dtype and pixels: the reference's identity in :func:`scores_key`."""
+    import hashlib
+
+    array = np.ascontiguousarray(image)
+    digest = hashlib.blake2b(f"{array.shape}{array.dtype}".encode(), digest_size=20)
+    digest.update(memoryview(array).cast("B"))
+    return digest.hexdigest()
+
+
+def maps_path(exr: str | os.PathLike) -> Path:
+    """Where the per-pixel error maps of the render ``exr`` are kept: ``<task>.maps.npz`` beside it."""
+    exr = Path(exr)
+    return exr.with_name(exr.stem + ".maps.npz")
+
+
+def _load_maps(path: Path, key: str) -> dict[str, np.ndarray] | None:
+    """The maps stored at ``path`` for ``key`` (relmse and flip), or None (missing, stale or unreadable)."""
+    try:
+        with np.load(path) as stored:
+            if str(stored["scores_key"]) != key:
+                return None
+            return {"relmse": stored["relmse"], "flip": stored["flip"]}
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _save_maps(path: Path, key: str, maps: dict[str, np.ndarray]) -> None:
+    from pointillist.imaging.io import atomic_write
+
+    atomic_write(path, lambda tmp: np.savez(tmp, scores_key=np.array(key), relmse=maps["relmse"], flip=maps["flip"]))
+
 
 #: Methods rendered at least once in this process (:func:`render_one`'s warm-up).
 _WARMED: set[str] = set()
@@ -237,6 +292,11 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
     of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
     seed-0 render (by ``record.exr``, :func:`pointillist.imaging.metrics.error_maps`) for the report page.
+
+    Scores are kept: a render's errors go into its JSON record with their :func:`scores_key`
+    (and a seed-0 render's maps into :func:`maps_path`); a render whose stored scores have the
+    key of this render file and this reference (and whose maps are there when needed) is not
+    scored again; with ``progress``, ``log`` is told how many were reused.
     """
     import sys
 
@@ -258,12 +318,27 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
         if progress and not terminal and log is not None:
             log(f"compare {number}/{len(tasks)}: {task.stem} "
                 + ("(reused)" if record.cached else format_time(record.time)))
+    digest = image_digest(ref_image)
+    reused = 0
     for record in records:
-        image = read_exr(Path(out_dir) / "renders" / record.exr).image
-        kept = {} if maps is not None and record.seed == 0 else None
-        record.__dict__.update(image_errors(image, ref_image, maps=kept))
-        if kept is not None:
+        exr = Path(out_dir) / "renders" / record.exr
+        score_key = scores_key(exr, digest)
+        keep_maps = record.seed == 0                      # the report page shows each point's seed-0 render
+        stored = _load_maps(maps_path(exr), score_key) if keep_maps else {}
+        if record.scores_key == score_key and stored is not None:
+            reused += 1
+            kept = stored
+        else:
+            kept = {}
+            record.__dict__.update(image_errors(read_exr(exr).image, ref_image, maps=kept))
+            record.scores_key = score_key
+            _write_json(exr.with_suffix(".json"), {k: v for k, v in record.as_dict().items() if k != "cached"})
+            if keep_maps:
+                _save_maps(maps_path(exr), score_key, kept)
+        if maps is not None and keep_maps:
             maps[record.exr] = kept
+    if progress and log is not None and reused:
+        log(f"compare: scores of {reused} of {len(records)} renders reused (same render and reference)")
     return records
 
 

@@ -91,8 +91,8 @@ HALF_WIDTH = "half_width = dr.opaque(mi.Float, self.quantile) * dr.sqrt(var / nv
 VAR = "var = dr.maximum(s2 - s1 * s1 / nv, 0.0) / dr.maximum(valid_n - 1.0, 1.0)"
 MORE = "more = ~converged & (count + spp <= limit)"
 CONVERGED = "(half_width <= dr.opaque(mi.Float, self.max_error) * dr.abs(mean))"
-FLIP_REFERENCE = "reference = clean(r)"
-FLIP_CALL = 'flip_evaluator.evaluate(reference, clean(x), "HDR", applyMagma=False,'
+FLIP_REFERENCE = "reference, test = clean(r), clean(x)"
+FLIP_CALL = 'result = _flip_drjit(test, reference, dynamic_range="hdr",'
 QUANTISER = "thresholds = work[:-1] + (work[1:] - work[:-1]) * (level / 255.0)"
 THRESHOLD_RULE = "values = dr.select(tensor.array >= dr.opaque(Float, float(level))"
 RANGE_SPLIT = "flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)"
@@ -154,12 +154,11 @@ MUTANTS = [
            [(RANGE_SPLIT, RANGE_SPLIT.replace("> threshold", ">= threshold"))], RANGE),
     # -- FLIP
     Mutant("flip_swapped", "FLIP: reference and test arguments swapped",
-           [(FLIP_REFERENCE, "reference = clean(x)"),
-            (FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(reference, clean(r)"))], FLIP, True),
+           [(FLIP_REFERENCE, "reference, test = clean(x), clean(r)")], FLIP, True),
     Mutant("flip_swapped_call",
            "FLIP: reference and test swapped in the call only (exposures still from the reference)",
-           [(FLIP_CALL, FLIP_CALL.replace("(reference, clean(x)", "(clean(x), reference"))], FLIP),
-    Mutant("flip_ldr", "FLIP: LDR instead of HDR", [(FLIP_CALL, FLIP_CALL.replace('"HDR"', '"LDR"'))], FLIP, True),
+           [(FLIP_CALL, FLIP_CALL.replace("(test, reference", "(reference, test"))], FLIP),
+    Mutant("flip_ldr", "FLIP: LDR instead of HDR", [(FLIP_CALL, FLIP_CALL.replace('"hdr"', '"ldr"'))], FLIP, True),
 ]
 
 

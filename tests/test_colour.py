@@ -142,6 +142,8 @@ def test_srgb_curves_match_colour_science():
     with pytest.warns(NonFiniteWarning, match="replaced 2 non-finite"):   # the imaging rule: +inf -> white
         ends = np.asarray(srgb_encode(np.array([[0.0, 1.0, np.nan, np.inf]])))
     assert ends.tolist() == [[0.0, 1.0, 0.0, 1.0]]
+    # black and white decode to exactly 0 and 1 (white was 0.99999988: a product with 1 / 1.055)
+    assert np.asarray(srgb_decode(np.array([[0.0, 1.0]], np.float32))).tolist() == [[0.0, 1.0]]
 
 
 @pytest.mark.parametrize("function", [rgb_to_hsv, hsv_to_rgb, adjust_hsv])
