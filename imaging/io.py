@@ -28,8 +28,8 @@ import numpy as np
 
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
-__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
-           "save_figure", "to_8bit"]
+__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "unwritable",
+           "atomic_write", "save_figure", "to_8bit"]
 
 #: EXR header attributes that OpenEXR owns; metadata may not use these names.
 _RESERVED = {
@@ -83,11 +83,9 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
         raise ValueError(f"{name}: {path} is a directory, expected a file name")
     if not path.parent.exists():
         raise ValueError(f"{name}: folder {path.parent} does not exist")
-    try:
-        with tempfile.TemporaryFile(dir=path.parent):
-            pass
-    except OSError as error:
-        raise ValueError(f"{name}: cannot write {path} ({error.strerror or error})") from None
+    refused = unwritable(path.parent)
+    if refused:
+        raise ValueError(f"{name}: cannot write {path} ({refused})")
     target = _file_id(path)
     if target is not None:
         ids = set(_INPUTS)
@@ -95,6 +93,17 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
         if target in ids:
             raise ValueError(f"{name}: refusing to overwrite the input file {path}")
     return path
+
+
+def unwritable(folder: str | os.PathLike) -> str:
+    """Why no new file can be created in ``folder`` ('' when one can): a file is created there and
+    removed, since permission bits do not tell for root, an immutable folder or ``/proc``."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as error:
+        return str(error.strerror or error)
+    return ""
 
 
 def atomic_write(path: str | os.PathLike, write) -> None:

@@ -27,7 +27,6 @@ import contextlib
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,13 +72,12 @@ def _existing_ancestor(path: Path) -> Path:
 
 
 def _probe(folder: Path, what: str, target: Path) -> None:
-    """UsageError unless a new file can be created in ``folder`` (permission bits do not tell for
-    root, an immutable folder or ``/proc``)."""
-    try:
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as error:
-        raise UsageError(f"{what}: cannot write {target} ({error.strerror or error})") from None
+    """UsageError unless a new file can be created in ``folder``."""
+    from pointillist.imaging.io import unwritable
+
+    refused = unwritable(folder)
+    if refused:
+        raise UsageError(f"{what}: cannot write {target} ({refused})")
 
 
 @dataclass
