@@ -220,7 +220,6 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     record, notice = _load_record(record_path, key, exr)
     if record is not None:
         return record
-    exr.parent.mkdir(parents=True, exist_ok=True)
 
     spec = METHODS[method]
     scene = load_configured_scene(scene_path, spec, value, params)
@@ -236,6 +235,7 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     image, timing = timed_render(scene, spp=spp, seed=int(seed))
     info = scene_info(scene)  # after the render: the sampler's own rounding of spp applies
     info.update(method=method, value=float(value), seed=int(seed))
+    exr.parent.mkdir(parents=True, exist_ok=True)  # only now: an interrupted render leaves no empty folder
     write_render(exr, image, scene, scene_path, info, timing, png=False, layout=layout)
     samples = float(info["spp"])
     layers = layout.split(image).layers

@@ -1,15 +1,26 @@
 """The ``pointillist`` console script and ``python -m pointillist``.
 
-The signal boundary (:mod:`pointillist.signals`) is installed before anything else is imported, so
-that a SIGINT or SIGTERM at any moment of the process, start-up included, ends it with 130 / 143
-and one line; then :func:`pointillist.cli.main` runs the command.
+SIGINT and SIGTERM are blocked on this module's first line (held pending, not lost), the signal
+boundary (:mod:`pointillist.signals`) is installed, and only then are they let through: from
+here on a signal at any moment of the process, start-up included, ends it with 130 / 143 and
+one line. Then :func:`pointillist.cli.main` runs the command.
+
+Before this first line runs (the interpreter's own start-up, tens of milliseconds) a signal gets
+Python's defaults: SIGTERM ends the process (a shell reports 143), Ctrl-C makes Python print
+``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
+import signal
+
+# The first thing the process does once it is ours: hold the two signals until they are handled.
+_HELD = (signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+         if hasattr(signal, "pthread_sigmask") else None)
+
+import contextlib  # noqa: E402 - after the signals are held
+import os  # noqa: E402
+import sys  # noqa: E402
 
 __all__ = ["main"]
 
@@ -19,6 +30,8 @@ def main() -> None:
     from pointillist import signals
 
     signals.install("pointillist")
+    if _HELD is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, _HELD)  # a signal held so far is recorded now
     try:
         from pointillist.cli import main as command_line
 
