@@ -22,6 +22,7 @@ and tiled renders all go through it.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -153,9 +154,14 @@ def layout_from_names(base: int, aov_integrator: bool, aov_names) -> ChannelLayo
 def channel_layout(scene, sensor: int = 0) -> ChannelLayout:
     """The :class:`ChannelLayout` of ``scene``'s renders (its film and integrator).
 
-    ValueError when two channels would share a name (an AOV named like a colour channel).
+    ValueError when two channels would share a name (an AOV named like a colour channel), and for
+    a film whose pixel format is CIE XYZ (``xyz``, ``xyza``: not a colour this project writes).
     """
     film = scene.sensors()[sensor].film()
+    described = str(film)
+    if re.search(r"pixel_format = xyza?\b", described):
+        raise ValueError("scene: the film's pixel_format is xyz/xyza: its channels are CIE XYZ, which would be "
+                         "written and previewed as RGB; use rgb, rgba, luminance or luminance_alpha")
     integrator = scene.integrator()
     is_aov = integrator.class_name() == _AOV_CLASS if hasattr(integrator, "class_name") else False
     layout = layout_from_names(int(film.base_channels_count()), is_aov, integrator.aov_names())

@@ -128,6 +128,8 @@ class Plan:
                 continue
             if path.is_dir():
                 raise UsageError(f"{out.what}: {path} is a folder, expected a file name")
+            if path.exists() and not path.is_file():  # a device, a FIFO, a socket: never replaced
+                raise UsageError(f"{out.what}: {path} exists and is not a regular file")
             ident = _file_id(path)
             if ident is not None and ident in files:
                 raise UsageError(f"{out.what}: refusing to overwrite the input file {path}")

@@ -290,6 +290,21 @@ def _channels(path: Path) -> dict[str, np.ndarray]:
     return channels
 
 
+def test_write_exr_luminance_alpha_and_layers_only(tmp_path):
+    """The writer takes what the split gives: (H, W, 2) luminance and alpha as Y and A, and a
+    render without colour as layers alone."""
+    from pointillist.imaging.io import write_exr
+
+    ya = np.stack([np.full((2, 3), 0.25), np.full((2, 3), 1.0)], axis=-1).astype(np.float32)
+    write_exr(tmp_path / "ya.exr", ya)
+    channels = _channels(tmp_path / "ya.exr")
+    assert sorted(channels) == ["A", "Y"] and (channels["Y"] == 0.25).all() and (channels["A"] == 1).all()
+    write_exr(tmp_path / "aov.exr", None, layers={"dd.y.T": np.arange(6, dtype=np.float32).reshape(2, 3)})
+    assert _channels(tmp_path / "aov.exr")["dd.y.T"].tolist() == [[0, 1, 2], [3, 4, 5]]
+    with pytest.raises(ValueError, match="expected an image, or layers"):
+        write_exr(tmp_path / "none.exr", None)
+
+
 def test_layout_from_names_hand_worked():
     """The split on hand-written channel lists: plain films, alpha, Mitsuba's aov integrator with
     zero, one and two nested integrators, and a nested integrator with AOVs of its own."""
