@@ -85,12 +85,20 @@ def template_text(name: str) -> str:
 def encode_half(array: np.ndarray) -> str:
     """``array`` as little-endian float16, base64 (the page decodes it with a 65536-entry table).
 
+    Finite values beyond float16's range (+-65504) are clipped to it (the page shows them as the
+    brightest value) instead of overflowing to infinity; NaN and infinities stay as they are.
+
     Examples
     --------
     >>> encode_half(np.array([1.0, -2.0, 0.5]))
     'ADwAwAA4'
+    >>> encode_half(np.array([3e38, -1e10])) == encode_half(np.array([65504.0, -65504.0]))
+    True
     """
-    data = np.ascontiguousarray(np.asarray(array, dtype="<f2"))
+    values = np.asarray(array, dtype=np.float64)
+    half = float(np.finfo(np.float16).max)
+    values = np.where(np.isfinite(values), np.clip(values, -half, half), values)
+    data = np.ascontiguousarray(values.astype("<f2"))
     return base64.b64encode(data.tobytes()).decode("ascii")
 
 

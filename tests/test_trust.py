@@ -424,6 +424,19 @@ def test_compare_refuses_a_non_finite_reference_up_front(mi, assets, tmp_path, v
     assert not out.exists()
 
 
+def test_report_page_clips_values_beyond_half_precision():
+    """Hostile round: a reference of 3e38 (finite) overflowed the page's float16 images to
+    infinity, and numpy's overflow warning reached stderr as two more lines."""
+    import warnings
+
+    from pointillist.compare_html import encode_half
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert encode_half(np.array([3e38, -1e10, 1.0])) == encode_half(np.array([65504.0, -65504.0, 1.0]))
+        assert encode_half(np.array([np.nan, np.inf])) == encode_half(np.array([np.nan, np.inf], np.float16))
+
+
 def test_compare_renders_a_damaged_cached_render_again(mi, assets, tmp_path):
     """Smaller defect: a damaged cached render (or reference) failed every later run for good.
     Now it is rendered again with a notice, and the table equals the undamaged run's."""
