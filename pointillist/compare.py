@@ -223,6 +223,9 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
 
     spec = METHODS[method]
     scene = load_configured_scene(scene_path, spec, value, params)
+    if scene_key(scene_path, params) != key:  # read again with the scene: it must still be the scene of `key`
+        raise UsageError(f"scene {scene_path}: it or a file it reads changed during the sweep (the renders so far "
+                         "belong to the scene as it was); run the command again")
     layout = channel_layout(scene)
     if not layout.colour:
         raise UsageError(f"scene {scene_path}: the render has no colour channels (Mitsuba's aov integrator without "

@@ -140,6 +140,28 @@ def test_compare_renders_again_when_a_texture_changes(mi, assets, tmp_path):
     assert fresh_new == 2 and errors == fresh
 
 
+def test_compare_stops_when_a_texture_changes_during_the_sweep(mi, assets, tmp_path, monkeypatch):
+    """Hostile round: a texture edited while a sweep ran put renders of the new scene under the
+    old scene's key, where the next run would reuse them. Each render now checks the key."""
+    from PIL import Image
+
+    import pointillist.compare as compare
+
+    real, count = compare.load_configured_scene, []
+
+    def load(*args, **kwargs):  # the user saves the texture while the second render loads
+        count.append(1)
+        if len(count) == 2:
+            Image.fromarray(np.full((4, 4, 3), 7, np.uint8)).save(assets / "tex" / "wall.png")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(compare, "load_configured_scene", load)
+    with pytest.raises(UsageError, match="changed during the sweep"):
+        compare.compare_scene(assets / "scene.xml", methods="grid", spp=[1, 4], reference_spp=4,
+                              out_dir=tmp_path / "c", progress=False, report=False)
+    assert len(list((tmp_path / "c").rglob("*.exr"))) == 1  # the reference; nothing of the new scene
+
+
 def test_resume_refuses_a_scene_whose_texture_changed(mi, assets, tmp_path):
     """Defect 1: `render --resume` blended two scenes when a file the XML reads had changed."""
     from PIL import Image
