@@ -122,22 +122,19 @@ def atomic_write(path: str | os.PathLike, write) -> None:
     try:
         # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that a
         # KeyboardInterrupt (Python's own handler, outside pointillist's signal boundary) always
-        # finds `tmp` set and removes the file.
+        # finds `tmp` set and removes the file; under the boundary, a second signal that ends the
+        # process at once removes it too (the name is registered as the file is made).
         held = _hold_signals()
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-        except OSError as error:
-            raise _naming(error, path) from None
+            tmp = signals.temporary_file(lambda: _temporary(path))
         finally:
             _release_signals(held)
-        os.close(fd)
-        with signals.writing(tmp):
-            try:
-                write(tmp)
-                os.chmod(tmp, 0o644)
-                os.replace(tmp, path)
-            except OSError as error:
-                raise _naming(error, path) from None
+        try:
+            write(tmp)
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, path)
+        except OSError as error:
+            raise _naming(error, path) from None
     except BaseException:
         if tmp is not None:
             try:
@@ -145,6 +142,19 @@ def atomic_write(path: str | os.PathLike, write) -> None:
             except OSError:
                 pass
         raise
+    finally:
+        if tmp is not None:
+            signals.forget_file(tmp)
+
+
+def _temporary(path: Path) -> str:
+    """A new empty file beside ``path`` (closed); its name."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    except OSError as error:
+        raise _naming(error, path) from None
+    os.close(fd)
+    return tmp
 
 
 def _naming(error: OSError, path: Path) -> OSError:

@@ -345,8 +345,11 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
         calls.append((scene, REFERENCE_SAMPLER, int(reference_spp), REFERENCE_SEED, params,
                       str(Path(out_dir) / "reference"), key, False))  # False: no warm-up render
     calls += [(scene, t.method, t.value, int(t.seed), params, out_dir, key) for t in tasks]
-    todo = [c for c in calls
-            if _load_record(*reversed(task_paths(c[5], Task(c[1], c[2], c[3]), key)), key)[0] is None]
+    todo = []
+    for call in calls:
+        exr, record = task_paths(call[5], Task(call[1], call[2], call[3]), key)
+        if _load_record(record, key, exr)[0] is None:  # missing or damaged
+            todo.append(call)
     keys = [json_key(c) for c in todo]
     run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
               desc="compare on cluster")

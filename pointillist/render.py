@@ -152,6 +152,7 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
     A second signal during the passes abandons the pass in flight: the EXR and the progress log
     of the passes done are written then (no PNG: the process ends at once).
     """
+    from pointillist import signals
     from pointillist.progressive import Budget, checkpoint_path, render_progressive, write_progress
 
     if time_budget is None and target_error is None:
@@ -168,6 +169,7 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
                                 checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,
                                 resume=resume, progress=True, inputs=plan.inputs, layout=layout,
                                 abandon=lambda partial: write(partial, png=False))
-    write(result, png=png)
+    with signals.on_abandon(lambda: write(result, png=False)):  # a second signal while writing: the EXR still is
+        write(result, png=png)
     return RenderSummary(exr=out, png=png_path, info=info, spp=result.stats.spp, timing=result.timing,
                          load_seconds=load_s, progressive=result)

@@ -14,7 +14,7 @@ console script does) the handlers only record the signal:
 * **second signal**: stop now, even inside a long native call (a render kernel). A watcher thread,
   woken through :func:`signal.set_wakeup_fd` (so it runs while the main thread is in native
   code), runs the hooks registered with :func:`on_abandon` (a progressive render writes the passes
-  done), removes the temporary files of writes in flight (:func:`writing`), prints one line and
+  done), removes the temporary files of writes in flight (:func:`temporary_file`), prints one line and
   ends the process with 130 / 143.
 
 Outside the boundary (library use, a notebook) nothing changes: :func:`check` does nothing, and
@@ -30,12 +30,11 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
 from pointillist.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
-           "check", "status", "message", "on_abandon", "writing", "ABANDON_SECONDS", "finish"]
+           "check", "status", "message", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS", "finish"]
 
 #: The signals the boundary handles.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -244,22 +243,25 @@ def on_abandon(hook: Callable[[], None]) -> Iterator[None]:
                 state.hooks.remove(hook)
 
 
-@contextlib.contextmanager
-def writing(path: str | os.PathLike) -> Iterator[None]:
-    """Register ``path`` (a temporary file being written) for removal if a second signal ends the
-    process during the block."""
+def temporary_file(create: Callable[[], str]) -> str:
+    """Call ``create()`` (which makes a temporary file and returns its name) and register the name,
+    as one step that a second signal cannot cut in two: the file it ends the process in the
+    middle of is removed (:func:`forget_file` when it is renamed or removed)."""
     state = _STATE
     if state is None:
-        yield
-        return
-    name = str(Path(path))
+        return create()
     with state.lock:
-        state.temporary.add(name)
-    try:
-        yield
-    finally:
+        name = create()
+        state.temporary.add(str(name))
+    return name
+
+
+def forget_file(name: str | os.PathLike) -> None:
+    """The temporary file ``name`` is gone (renamed over its target, or removed)."""
+    state = _STATE
+    if state is not None:
         with state.lock:
-            state.temporary.discard(name)
+            state.temporary.discard(str(name))
 
 
 def finish(exit_status: int) -> int:
@@ -273,6 +275,6 @@ def finish(exit_status: int) -> int:
         signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
     signum = received()
     if signum is not None and exit_status == 0:
-        _print_line(f"{_STATE.command}: {message(signum)}")
+        _print_line(f"{_STATE.command if _STATE is not None else 'pointillist'}: {message(signum)}")
         return STATUS[signum]
     return exit_status

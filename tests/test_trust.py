@@ -479,6 +479,12 @@ def test_compare_renders_a_damaged_cached_render_again(mi, assets, tmp_path):
     assert again.new == 1 and [r.rmse for r in again.records] == [r.rmse for r in first.records]
     notices = [line for line in lines if "notice" in line]
     assert len(notices) == 2 and all("cannot be read" in n and "rendered again" in n for n in notices), notices
+    # the cluster's pass (here serial: client None) counts a damaged render as missing too
+    from pointillist.compare import Task, prerender_sweep
+
+    render.write_bytes(b"")
+    assert prerender_sweep(None, assets / "scene.xml", [Task("grid", 1, 0)], params={}, out_dir=out,
+                           reference_spp=4, progress=False) == 1
 
 
 # ------------------------------------------------------------------ checkpoints
