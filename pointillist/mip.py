@@ -430,7 +430,7 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
                                 scheduler=scheduler)
         project_s = sum(r["seconds"] for r in remote)
     for k, (frame_view, name) in enumerate(tqdm(list(zip(views, names)), desc="mip", unit="frame",
-                                                disable=len(names) == 1 or not progress)):
+                                                disable=True if len(names) == 1 or not progress else None)):
         signals.check()
         if remote is not None:
             image = remote[k]["image"]

@@ -676,7 +676,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     start = _start_stats(scene, sensor, acc)
     if resume:
         acc, start, history = _load_checkpoint(checkpoint_file, identity, layout.channels)
-    resumed_from, stats, stop, checkpoints = acc.passes, start, None, 0
+    resumed_from, stats, stop, checkpoints, signum = acc.passes, start, None, 0, None
     sums = [0.0, 0.0, 0.0, 0, 0]  # trace, compile, execute, kernels, cache hits
     # What a second signal writes (read by the signal watcher's thread: replaced, never changed).
     done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums)}
@@ -697,7 +697,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     last_write = clock()
     bar = _bar(budget, start, progress)
     try:
-        with signals.on_abandon(abandoned):
+        with signals.deferred() as requested, signals.on_abandon(abandoned):
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
                                             clock=clock, channels=channels):
                 history.append((new.passes, new.seconds, new.spp, new.estimated_relmse))
@@ -707,8 +707,8 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                 stats = new
                 done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums)}
                 bar.set_postfix_str(_postfix(budget, stats), refresh=False)
-                if signals.received() is not None:  # first signal: stop after the pass in flight
-                    stop = "interrupted"
+                if requested() is not None:  # first signal: stop after the pass in flight
+                    stop, signum = "interrupted", requested()
                     break
                 if checkpoint_seconds is not None and clock() - last_write >= checkpoint_seconds:
                     _save_checkpoint(checkpoint_file, acc, stats, history, identity)
@@ -723,7 +723,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     if checkpoint_seconds is not None and acc.passes > resumed_from:
         _save_checkpoint(checkpoint_file, acc, stats, history, identity)
         checkpoints += 1
-    return finish(stop, signals.received() if stop == "interrupted" else None,
+    return finish(stop, (signum or signals.received()) if stop == "interrupted" else None,
                   done={"acc": acc, "stats": stats, "history": history, "sums": sums})
 
 

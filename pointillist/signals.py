@@ -34,7 +34,8 @@ from collections.abc import Callable, Iterator
 from pointillist.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
-           "check", "status", "message", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS", "finish"]
+           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS",
+           "finish"]
 
 #: The signals the boundary handles.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -241,6 +242,34 @@ def on_abandon(hook: Callable[[], None]) -> Iterator[None]:
         with state.lock:
             with contextlib.suppress(ValueError):
                 state.hooks.remove(hook)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[Callable[[], int | None]]:
+    """For a loop that stops by itself after the step in flight: yields ``requested()``, the first
+    SIGINT/SIGTERM received (or None).
+
+    Under the boundary that is :func:`received`. Outside it (library use: a notebook, a script),
+    in the main thread, the two signals are caught for the block: the first is only recorded; a
+    second raises ``KeyboardInterrupt`` as Python's own Ctrl-C does. The previous handlers come
+    back after the block.
+    """
+    if _STATE is not None or threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    first: list[int] = []
+
+    def handle(signum, frame):
+        if first:
+            raise KeyboardInterrupt(f"signal {signum} again")
+        first.append(signum)
+
+    previous = {signum: signal.signal(signum, handle) for signum in SIGNALS}
+    try:
+        yield lambda: first[0] if first else None
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
 
 
 def temporary_file(create: Callable[[], str]) -> str:

@@ -193,13 +193,14 @@ def test_render_never_writes_over_a_file_the_scene_reads(mi, assets, name):
 
 def _refused_before_rendering(monkeypatch, match, call):
     """Run ``call``; it must raise UsageError matching ``match`` without rendering anything."""
+    import pointillist.progressive as progressive  # imported first: it binds scene.timed_render at import
     import pointillist.scene as scene_module
 
     def no_render(*args, **kwargs):
         raise AssertionError("rendered before refusing an output")
 
     monkeypatch.setattr(scene_module, "timed_render", no_render)
-    monkeypatch.setattr("pointillist.progressive.timed_render", no_render)
+    monkeypatch.setattr(progressive, "timed_render", no_render)
     with pytest.raises(UsageError, match=match):
         call()
 
@@ -591,6 +592,30 @@ def test_a_second_signal_abandons_the_pass_in_flight(tmp_path, name, status, wor
     with np.load(out.with_suffix(".checkpoint.npz")) as data:
         assert int(data["passes"]) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["i.checkpoint.npz", "i.exr", "i.progress.csv"]
+
+
+def test_library_use_keeps_the_pass_in_flight(mi, monkeypatch):
+    """Outside the command line (a notebook), Ctrl-C during render_progressive still finishes the
+    pass in flight and returns the passes done (a second one raises, as Python's Ctrl-C does);
+    Python's own handler is back afterwards."""
+    import pointillist.progressive as progressive
+    from pointillist.scene import load_scene
+
+    real, calls = progressive.timed_render, []
+
+    def timed_render(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # lands during the second pass
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(progressive, "timed_render", timed_render)
+    before = signal.getsignal(signal.SIGINT)
+    result = progressive.render_progressive(load_scene(ROOT / "scenes" / "default.xml", {"res": "8"}),
+                                            ROOT / "scenes" / "default.xml", progressive.Budget(spp=64, pass_spp=1),
+                                            params={"res": "8"}, progress=False)
+    assert result.interrupted and result.stats.passes == 2 and result.signum == signal.SIGINT
+    assert signal.getsignal(signal.SIGINT) is before
 
 
 def test_signal_boundary_records_and_raises_only_at_safe_points():
