@@ -12,7 +12,9 @@ integrator, and only they say it:
   its own AOVs. ``aov_names()`` lists a nested integrator ``inner`` as ``inner.R inner.G inner.B
   inner.A`` followed by ``inner.<its AOVs>``; the four names stand for the film's base channels.
   Mitsuba's documentation: the first nested integrator's image is the colour (and alpha) of the
-  render. Without a nested integrator the render has no colour at all (only AOVs).
+  render. Without a nested integrator the render has no colour at all (only AOVs). Mitsuba
+  3.9 then repeats the names after the nested images (all but their ``R G B A``), computed
+  again by its own film: those copies are left out.
 
 :func:`channel_layout` reads this from a loaded scene into a :class:`ChannelLayout`, whose
 :meth:`ChannelLayout.split` cuts an image into ``colour`` (H, W, 1 or 3, or None), ``alpha``
@@ -112,7 +114,10 @@ class ChannelLayout:
 def layout_from_names(base: int, aov_integrator: bool, aov_names) -> ChannelLayout:
     """The layout for a film of ``base`` base channels (colour + alpha) and an integrator's AOV names.
 
-    ``aov_integrator``: the integrator is Mitsuba's ``aov`` (see the module's description).
+    ``aov_integrator``: the integrator is Mitsuba's ``aov`` (see the module's description). Its
+    render repeats the AOVs of the integrators nested in it (once in their own image, once after
+    it, where Mitsuba computes them anew: an ``adaptive`` integrator's sample count is 1 there);
+    the first copy is the layer, the others are left out.
 
     Examples
     --------
@@ -127,34 +132,63 @@ def layout_from_names(base: int, aov_integrator: bool, aov_names) -> ChannelLayo
     if base_names is None:  # a film whose base channels are not Y/YA/RGB/RGBA: all of them are layers
         base_names = tuple(f"channel{k}" for k in range(int(base)))
     colour_count = {1: 1, 2: 1, 3: 3, 4: 3}.get(int(base), 0)
-    if not aov_integrator:
-        names = list(base_names) + aov_names
-        colour = tuple(range(colour_count))
-        alpha = colour_count if len(base_names) > colour_count and colour_count else None
+    if aov_integrator:
+        names, leading = _aov_channels(base_names, aov_names)
     else:
-        names, colour, alpha = [], (), None
-        k = 0
-        while k < len(aov_names):
-            prefix = aov_names[k][:-2]
-            if aov_names[k].endswith(".R") and aov_names[k:k + 4] == [f"{prefix}.{c}" for c in "RGBA"]:
-                start = len(names)
-                names += [f"{prefix}.{c}" for c in base_names]
-                if not colour and colour_count:  # the first nested integrator: the render's colour
-                    colour = tuple(range(start, start + colour_count))
-                    alpha = start + colour_count if len(base_names) > colour_count else None
-                k += 4
-            else:
-                names.append(aov_names[k])
-                k += 1
-    used = set(colour) | ({alpha} if alpha is not None else set())
-    layers = tuple((name, index) for index, name in enumerate(names) if index not in used)
-    return ChannelLayout(tuple(names), colour, alpha, layers)
+        names, leading = list(base_names) + aov_names, True
+    colour = tuple(range(colour_count)) if leading else ()
+    alpha = colour_count if colour and len(base_names) > colour_count else None
+    used, seen, layers = set(colour) | ({alpha} if alpha is not None else set()), set(), []
+    for index, name in enumerate(names):
+        if index not in used and name not in seen:
+            layers.append((name, index))
+        seen.add(name)
+    return ChannelLayout(tuple(names), colour, alpha, tuple(layers))
+
+
+def _nested(names: list[str]) -> list[tuple[str, list[str]]]:
+    """The integrators nested in an ``aov`` integrator, from its AOV names: ``[(name, its AOV
+    names)]``. Each is listed as ``name.R name.G name.B name.A`` and then ``name.<its AOVs>``,
+    all of them before the ``aov`` integrator's own AOVs."""
+    nested, k = [], 0
+    while k < len(names):
+        prefix = names[k][:-2]
+        if not (names[k].endswith(".R") and names[k:k + 4] == [f"{prefix}.{c}" for c in "RGBA"]):
+            break
+        k += 4
+        children = []
+        while k < len(names) and names[k].startswith(prefix + "."):
+            children.append(names[k][len(prefix) + 1:])
+            k += 1
+        nested.append((prefix, children))
+    return nested
+
+
+def _aov_channels(base_names: tuple[str, ...], names: list[str]) -> tuple[list[str], bool]:
+    """The channels of an ``aov`` integrator's render, and whether they start with a colour.
+
+    Mitsuba 3.9 renders each nested integrator (its base channels and AOVs; a nested ``aov``
+    integrator: its own channels, recursively), then its own film with every name of
+    ``aov_names()`` but the nested integrators' ``R G B A``."""
+    nested = _nested(names)
+    channels: list[str] = []
+    leading = None
+    for prefix, children in nested:
+        if _nested(children):
+            inner, starts_with_colour = _aov_channels(base_names, children)
+        else:
+            inner, starts_with_colour = list(base_names) + children, True
+        channels += [f"{prefix}.{name}" for name in inner]
+        leading = starts_with_colour if leading is None else leading
+    rgba = {f"{prefix}.{c}" for prefix, _ in nested for c in "RGBA"}
+    channels += [name for name in names if name not in rgba]
+    return channels, bool(leading)
 
 
 def channel_layout(scene, sensor: int = 0) -> ChannelLayout:
     """The :class:`ChannelLayout` of ``scene``'s renders (its film and integrator).
 
-    ValueError when two channels would share a name (an AOV named like a colour channel), and for
+    ValueError when an AOV is named like a colour channel (``R``, ``Y``...), and for
     a film whose pixel format is CIE XYZ (``xyz``, ``xyza``: not a colour this project writes).
     """
     film = scene.sensors()[sensor].film()
@@ -165,9 +199,7 @@ def channel_layout(scene, sensor: int = 0) -> ChannelLayout:
     integrator = scene.integrator()
     is_aov = integrator.class_name() == _AOV_CLASS if hasattr(integrator, "class_name") else False
     layout = layout_from_names(int(film.base_channels_count()), is_aov, integrator.aov_names())
-    seen: set[str] = set()
-    for name in layout.names:
-        if name in seen:
-            raise ValueError(f"scene: two channels of the render are both named {name!r}")
-        seen.add(name)
+    kept = [layout.names[i] for i in layout.colour] + layout.layer_names()
+    if len(set(kept)) != len(kept) or {"R", "G", "B", "A", "Y"} & set(layout.layer_names()):
+        raise ValueError(f"scene: an AOV is named like a colour channel or another AOV ({', '.join(layout.names)})")
     return layout

@@ -297,6 +297,10 @@ def _aov_scene(folder: Path, integrator: str, pixel_format: str = "rgb") -> Path
 AOV_ONLY = '<integrator type="aov"><string name="aovs" value="dd.y:depth,nn:sh_normal"/></integrator>'
 AOV_PATH = ('<integrator type="aov"><string name="aovs" value="dd.y:depth,nn:sh_normal"/>'
             '<integrator type="path" name="inner"/></integrator>')
+AOV_NESTED = ('<integrator type="aov"><string name="aovs" value="dd.y:depth"/><integrator type="aov" name="inner">'
+              '<string name="aovs" value="nn:sh_normal"/><integrator type="path" name="p"/></integrator></integrator>')
+AOV_ADAPTIVE = ('<integrator type="aov"><string name="aovs" value="dd.y:depth"/><integrator type="adaptive" '
+                'name="inner"><float name="threshold" value="64"/><integrator type="path"/></integrator></integrator>')
 
 
 def _channels(path: Path) -> dict[str, np.ndarray]:
@@ -340,11 +344,19 @@ def test_layout_from_names_hand_worked():
     assert (luminance_alpha.names, luminance_alpha.colour, luminance_alpha.alpha) == (("Y", "A"), (0,), 1)
     alone = layout_from_names(4, True, ["dd.y.T"])
     assert (alone.names, alone.colour, alone.alpha) == (("dd.y.T",), (), None)
+    # two nested integrators, the first with an AOV of its own: each nested image, then the aov
+    # integrator's own film again with every name but the nested R G B A (a.sample_count twice)
     two = layout_from_names(4, True, ["a.R", "a.G", "a.B", "a.A", "a.sample_count", "b.R", "b.G", "b.B", "b.A",
                                       "dd.y.T"])
-    assert two.names == ("a.R", "a.G", "a.B", "a.A", "a.sample_count", "b.R", "b.G", "b.B", "b.A", "dd.y.T")
+    assert two.names == ("a.R", "a.G", "a.B", "a.A", "a.sample_count", "b.R", "b.G", "b.B", "b.A",
+                         "a.sample_count", "dd.y.T")
     assert two.colour == (0, 1, 2) and two.alpha == 3
-    assert two.layer_names() == ["a.sample_count", "b.R", "b.G", "b.B", "b.A", "dd.y.T"]
+    assert two.layers == (("a.sample_count", 4), ("b.R", 5), ("b.G", 6), ("b.B", 7), ("b.A", 8), ("dd.y.T", 10))
+    nested = layout_from_names(3, True, ["i.R", "i.G", "i.B", "i.A", "i.p.R", "i.p.G", "i.p.B", "i.p.A", "i.nn.X",
+                                         "dd.y.T"])  # aov(aov(path) named i, with nn) with depth
+    assert nested.names == ("i.p.R", "i.p.G", "i.p.B", "i.nn.X", "i.p.R", "i.p.G", "i.p.B", "i.p.A", "i.nn.X",
+                            "dd.y.T")
+    assert nested.colour == (0, 1, 2) and nested.layer_names() == ["i.nn.X", "i.p.A", "dd.y.T"]
     with pytest.raises(ValueError, match="name 4 channels"):
         layout_from_names(3, True, ["a.R", "a.G", "a.B", "a.A", "dd.y.T"]).split(np.zeros((2, 2, 5)))
 
@@ -356,7 +368,10 @@ def test_layout_from_names_hand_worked():
     (AOV_ONLY, "rgb", "", ["dd.y.T", "nn.X", "nn.Y", "nn.Z"]),
     (AOV_PATH, "rgb", "RGB", ["dd.y.T", "nn.X", "nn.Y", "nn.Z"]),
     (AOV_PATH, "rgba", "RGBA", ["dd.y.T", "nn.X", "nn.Y", "nn.Z"]),
-], ids=["path", "path-rgba", "path-luminance-alpha", "aov", "aov-path", "aov-path-rgba"])
+    (AOV_NESTED, "rgb", "RGB", ["inner.nn.X", "inner.nn.Y", "inner.nn.Z", "inner.p.A", "dd.y.T"]),
+    (AOV_ADAPTIVE, "rgb", "RGB", ["inner.sample_count", "dd.y.T"]),
+], ids=["path", "path-rgba", "path-luminance-alpha", "aov", "aov-path", "aov-path-rgba", "aov-aov-path",
+        "aov-adaptive"])
 def test_channel_layout_agrees_with_mitsubas_render(mi, tmp_path, integrator, pixel_format, colour, layers):
     """Defect 5: the split reads Mitsuba's own films and integrators; each named channel holds what
     Mitsuba computed (colour = the nested path tracer's image, depth = the distance along the ray)."""
@@ -377,12 +392,17 @@ def test_channel_layout_agrees_with_mitsubas_render(mi, tmp_path, integrator, pi
         depth = parts.layers["dd.y.T"]
         assert (depth == 0).any() and depth.max() <= 2 * 2 ** 0.5 and np.abs(depth - 2.0).min() < 0.1
         inside = depth >= 2.0  # every sample of the pixel hit the sphere
-        normals = np.stack([parts.layers[f"nn.{c}"] for c in "XYZ"], axis=-1)[inside]
-        assert inside.any() and (normals[:, 2] > 0).all()  # facing the camera (+z)
-        np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=0.05)
-    if integrator == AOV_PATH:
+        prefix = "inner.nn" if "inner.nn.X" in parts.layers else "nn"
+        if f"{prefix}.X" in parts.layers:
+            normals = np.stack([parts.layers[f"{prefix}.{c}"] for c in "XYZ"], axis=-1)[inside]
+            assert inside.any() and (normals[:, 2] > 0).all()  # facing the camera (+z)
+            np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=0.05)
+    if integrator in (AOV_PATH, AOV_NESTED):
         path_scene = load_scene(_aov_scene(tmp_path, '<integrator type="path"/>', pixel_format))
         np.testing.assert_array_equal(parts.colour, np.asarray(mi.render(path_scene, spp=4, seed=3))[..., :3])
+    if integrator == AOV_ADAPTIVE:  # the adaptive integrator's own count (its copy after the image says 1)
+        counts = parts.layers["inner.sample_count"]
+        assert counts.min() >= 4 and counts.max() > counts.min()  # the 4 corners at least; more at the outline
 
 
 def test_render_writes_mitsubas_aov_integrator(mi, tmp_path):
