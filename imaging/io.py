@@ -29,8 +29,8 @@ import numpy as np
 from pointillist.errors import one_line
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
-__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "atomic_write",
-           "save_figure", "to_8bit"]
+__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "unwritable",
+           "atomic_write", "save_figure", "to_8bit"]
 
 #: EXR header attributes that OpenEXR owns; metadata may not use these names.
 _RESERVED = {
@@ -84,11 +84,9 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
         raise ValueError(f"{name}: {path} is a directory, expected a file name")
     if not path.parent.exists():
         raise ValueError(f"{name}: folder {path.parent} does not exist")
-    try:
-        with tempfile.TemporaryFile(dir=path.parent):
-            pass
-    except OSError as error:
-        raise ValueError(f"{name}: cannot write {path} ({error.strerror or error})") from None
+    refused = unwritable(path.parent)
+    if refused:
+        raise ValueError(f"{name}: cannot write {path} ({refused})")
     target = _file_id(path)
     if target is not None:
         ids = set(_INPUTS)
@@ -98,31 +96,46 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
     return path
 
 
+def unwritable(folder: str | os.PathLike) -> str:
+    """Why no new file can be created in ``folder`` ('' when one can): a file is created there and
+    removed, since permission bits do not tell for root, an immutable folder or ``/proc``."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as error:
+        return str(error.strerror or error)
+    return ""
+
+
 def atomic_write(path: str | os.PathLike, write) -> None:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``.
 
     The one way this project writes files: a reader never sees a half-written file, and a
-    failed or interrupted write (an exception, Ctrl-C, SIGTERM under ``pointillist``) leaves
-    the old file (if any) and no temporary file behind. A folder that cannot be written
-    raises the ``OSError`` (e.g. ``PermissionError``) with ``filename`` the target and a
-    message naming it.
+    failed or interrupted write (an exception, Ctrl-C, SIGTERM, a second signal that ends
+    ``pointillist`` at once) leaves the old file (if any) and no temporary file behind. An
+    ``OSError`` (a folder that cannot be written, a full disk, a target that is a folder) is
+    raised again with ``filename`` the target and a message naming it, never the temporary file.
     """
+    from pointillist import signals
+
     path = Path(path)
     tmp = None
     try:
-        # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that the
-        # KeyboardInterrupt they raise (see pointillist.cli) always finds `tmp` set and removes the file.
+        # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that a
+        # KeyboardInterrupt (Python's own handler, outside pointillist's signal boundary) always
+        # finds `tmp` set and removes the file; under the boundary, a second signal that ends the
+        # process at once removes it too (the name is registered as the file is made).
         held = _hold_signals()
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-        except OSError as error:
-            raise type(error)(error.errno, f"cannot write {path}: {error.strerror or error}", str(path)) from None
+            tmp = signals.temporary_file(lambda: _temporary(path))
         finally:
             _release_signals(held)
-        os.close(fd)
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
+        try:
+            write(tmp)
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, path)
+        except OSError as error:
+            raise _naming(error, path) from None
     except BaseException:
         if tmp is not None:
             try:
@@ -130,6 +143,27 @@ def atomic_write(path: str | os.PathLike, write) -> None:
             except OSError:
                 pass
         raise
+    finally:
+        if tmp is not None:
+            signals.forget_file(tmp)
+
+
+def _temporary(path: Path) -> str:
+    """A new empty file beside ``path`` (closed); its name."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    except OSError as error:
+        raise _naming(error, path) from None
+    os.close(fd)
+    return tmp
+
+
+def _naming(error: OSError, path: Path) -> OSError:
+    """``error`` as the same OSError type naming ``path`` (the target), not a temporary file."""
+    reason = error.strerror or str(error)
+    if error.errno is None:
+        return type(error)(f"cannot write {path}: {reason}")
+    return type(error)(error.errno, f"cannot write {path}: {reason}", str(path))
 
 
 _SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
@@ -375,8 +409,10 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
     ----------
     path : str or path-like
         Target file; its folder must exist. Never an input of this process.
-    image : array_like or Dr.Jit tensor
-        (H, W) or (H, W, 1) writes ``Y``; (H, W, 3) ``RGB``; (H, W, 4) ``RGBA``.
+    image : array_like or Dr.Jit tensor, or None
+        (H, W) or (H, W, 1) writes ``Y``; (H, W, 2) ``Y`` and ``A``; (H, W, 3) ``RGB``;
+        (H, W, 4) ``RGBA``. None: only ``layers`` (a render without colour, e.g. depth and
+        normals alone).
     metadata : mapping, optional
         Header attributes: str keys, values int, float, str or bool (stored as int).
     layers : mapping, optional
@@ -394,17 +430,30 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
     import OpenEXR
 
     path = check_output_path(path, inputs)
-    pixels = to_numpy(as_tensor(image, "image", channels=(1, 3, 4))).astype(np.float32, copy=False)
-    if pixels.ndim == 3 and pixels.shape[2] == 1:
-        pixels = pixels[..., 0]
-    names = {2: "Y", 3: "RGB", 4: "RGBA"}[pixels.ndim if pixels.ndim == 2 else pixels.shape[2]]
-    channels: dict[str, np.ndarray] = {names: np.ascontiguousarray(pixels)}
+    channels: dict[str, np.ndarray] = {}
+    shape = None
+    if image is not None:
+        pixels = to_numpy(as_tensor(image, "image", channels=(1, 2, 3, 4))).astype(np.float32, copy=False)
+        if pixels.ndim == 3 and pixels.shape[2] == 1:
+            pixels = pixels[..., 0]
+        if pixels.ndim == 3 and pixels.shape[2] == 2:  # luminance and alpha: Y, A
+            channels = {"Y": np.ascontiguousarray(pixels[..., 0]), "A": np.ascontiguousarray(pixels[..., 1])}
+        else:
+            names = {2: "Y", 3: "RGB", 4: "RGBA"}[pixels.ndim if pixels.ndim == 2 else pixels.shape[2]]
+            channels = {names: np.ascontiguousarray(pixels)}
+        shape = pixels.shape[:2]
+    elif not layers:
+        raise ValueError("image: expected an image, or layers to write without one")
     for name, layer in (layers or {}).items():
         if not isinstance(name, str) or not name or name in {"R", "G", "B", "A", "Y"}:
             raise ValueError(f"layers: invalid or clashing channel name {name!r}")
         data = to_numpy(as_tensor(layer, f"layers[{name!r}]")).astype(np.float32, copy=False)
-        if data.shape != pixels.shape[:2]:
-            raise ValueError(f"layers[{name!r}]: expected shape {pixels.shape[:2]}, got {data.shape}")
+        if shape is None:
+            if data.ndim != 2:
+                raise ValueError(f"layers[{name!r}]: expected an (H, W) array, got shape {data.shape}")
+            shape = data.shape
+        if data.shape != shape:
+            raise ValueError(f"layers[{name!r}]: expected shape {shape}, got {data.shape}")
         channels[name] = np.ascontiguousarray(data)
     header: dict[str, Any] = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (metadata or {}).items():

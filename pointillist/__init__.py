@@ -33,4 +33,7 @@ def setup(variant: str = "llvm_ad_rgb"):
     from pointillist import plugins
 
     plugins.register()
+    from pointillist import signals
+
+    signals.check()  # a safe point: start-up (imports, libLLVM check, plugins) is done
     return mi

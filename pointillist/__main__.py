@@ -1,5 +1,3 @@
-import sys
+from pointillist.console import main
 
-from pointillist.cli import main
-
-sys.exit(main())
+main()

@@ -3,7 +3,7 @@
 Sub-commands are the modules of :mod:`pointillist.commands`. Bad input (and a
 file or folder that cannot be read or written) exits with status 2 and one line
 on stderr, never a traceback (set ``POINTILLIST_DEBUG=1`` to see one for an
-unexpected error). Ctrl-C exits with 130, SIGTERM with 143.
+unexpected error). Ctrl-C exits with 130, SIGTERM with 143 (:mod:`pointillist.signals`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,8 @@ import os
 import pkgutil
 import signal
 import sys
-import threading
 
-from pointillist import __version__
+from pointillist import __version__, signals
 from pointillist.errors import Terminated, UsageError
 
 __all__ = ["main", "build_parser"]
@@ -54,10 +53,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _terminate(signum, frame):
-    raise Terminated()
-
-
 def _os_message(error: OSError) -> str:
     """One line for an OSError: its message, and the path when the message does not name it."""
     text = error.strerror or str(error)
@@ -70,30 +65,44 @@ def _os_message(error: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
-    SIGTERM is handled like Ctrl-C (while the command runs, in the main thread): the
-    :class:`~pointillist.errors.Terminated` it raises unwinds the command, removing any
-    temporary file, and the status is 143 (130 for Ctrl-C), with one line on stderr.
+    Runs inside the signal boundary (:mod:`pointillist.signals`; installed here for the call when
+    the console script has not installed it already): SIGINT and SIGTERM stop the command at its
+    next safe point, where the ``KeyboardInterrupt`` / :class:`~pointillist.errors.Terminated`
+    raised unwinds it (temporary files removed, clusters closed); the status is 130 (Ctrl-C) or
+    143 (SIGTERM), with one line on stderr. A signal that arrives after the last safe point still
+    makes the status 130 / 143.
     """
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    installed = threading.current_thread() is threading.main_thread()
-    if installed:
-        previous = signal.signal(signal.SIGTERM, _terminate)
+    with signals.boundary():
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        name = f"pointillist {args.command}"
+        signals.set_command(name)
+        status = _run(args, name)
+        signum = signals.received()
+        if signum is not None and status == 0:
+            print(f"{name}: {signals.message(signum)}", file=sys.stderr)
+            status = signals.status(signum)
+        return status
+
+
+def _run(args: argparse.Namespace, name: str) -> int:
+    """Run the parsed command; every error becomes its exit status and one line on stderr."""
     try:
+        signals.check()
         return int(args._run(args) or 0)
     except UsageError as error:
-        print(f"pointillist {args.command}: error: {error}", file=sys.stderr)
+        print(f"{name}: error: {error}", file=sys.stderr)
         return 2
-    except Terminated:
-        print(f"pointillist {args.command}: terminated (SIGTERM)", file=sys.stderr)
-        return 143
-    except KeyboardInterrupt:
-        print(f"pointillist {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as interrupt:  # also Terminated (SIGTERM)
+        signum = signals.received()
+        if signum is None:
+            signum = signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT
+        print(f"{name}: {signals.message(signum)}", file=sys.stderr)
+        return signals.status(signum)
     except OSError as error:  # a file or folder that cannot be read or written
         if os.environ.get("POINTILLIST_DEBUG"):
             raise
-        print(f"pointillist {args.command}: error: {_os_message(error)}", file=sys.stderr)
+        print(f"{name}: error: {_os_message(error)}", file=sys.stderr)
         return 2
     except Exception as error:  # noqa: BLE001 - the one place that turns errors into exit codes
         from pointillist.llvm import LLVMNotFoundError
@@ -104,14 +113,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"pointillist: error: {error}", file=sys.stderr)
             return 2
         if isinstance(error, (ValueError, TypeError)):
-            print(f"pointillist {args.command}: error: {error}", file=sys.stderr)
+            print(f"{name}: error: {error}", file=sys.stderr)
             return 2
-        print(f"pointillist {args.command}: internal error: {type(error).__name__}: {error} "
+        print(f"{name}: internal error: {type(error).__name__}: {error} "
               "(POINTILLIST_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
-    finally:
-        if installed:
-            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from pointillist.compare_methods import METHODS, load_configured_scene, resolve_methods, scene_key, sweep_parameter
+from pointillist import signals
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
@@ -84,7 +85,9 @@ class RenderRecord:
     ``spp`` is the samples per pixel actually taken (the sampler may round the
     requested count; adaptive methods report their mean). ``rmse``, ``relmse`` and
     ``flip`` are the errors against the reference once scored (:func:`run_sweep`), and
-    ``scores_key`` says against what (:func:`scores_key`; empty while unscored).
+    ``scores_key`` says against what (:func:`scores_key`; empty while unscored). ``notice``: why
+    a cached render was rendered again. ``cached`` and ``notice`` describe this run and are not
+    stored (:func:`record_json`).
     """
 
     method: str
@@ -109,6 +112,7 @@ class RenderRecord:
     relmse: float = math.nan
     flip: float = math.nan
     scores_key: str = ""
+    notice: str = ""
 
     @property
     def mse(self) -> float:
@@ -126,19 +130,51 @@ def task_paths(out_dir: str | os.PathLike, task: Task, key: str) -> tuple[Path, 
     folder = Path(out_dir) / "renders" / key
     return folder / f"{task.stem}.exr", folder / f"{task.stem}.json"
 
-def _load_record(path: Path, key: str, exr: Path) -> RenderRecord | None:
+def _load_record(path: Path, key: str, exr: Path) -> tuple[RenderRecord | None, str]:
+    """The stored record of a finished render, or ``(None, why)`` when it must be rendered (again).
+
+    A record counts only with its EXR, for the same scene key, and when that EXR reads back as an
+    image of the record's size with the record's channels: a damaged file (truncated, replaced,
+    edited) is rendered again, with ``why`` saying so, instead of failing every later run.
+    """
     if not (path.is_file() and exr.is_file()):
-        return None
+        return None, ""
     try:
         data = json.loads(path.read_text())
         names = {f.name for f in fields(RenderRecord)}
-        record = RenderRecord(**{k: v for k, v in data.items() if k in names})
-    except (ValueError, TypeError):
-        return None
+        record = RenderRecord(**{k: v for k, v in data.items() if k in names and k not in ("cached", "notice")})
+    except (ValueError, TypeError, OSError):
+        for stale in (exr, path):
+            stale.unlink(missing_ok=True)
+        return None, f"cached render {exr.name}: its record {path.name} is damaged; rendered again"
     if record.scene_key != key:
-        return None
+        return None, ""
+    problem = _damage(exr, record.width, record.height)
+    if problem:
+        for stale in (exr, path):  # removed first: the new render is a new file, not one this process read
+            stale.unlink(missing_ok=True)
+        return None, f"cached render {exr.name} {problem}; rendered again"
     record.cached = True
-    return record
+    return record, ""
+
+
+def _damage(exr: Path, width: int, height: int) -> str:
+    """What is wrong with a cached render's EXR ('' when it reads back as a width x height image)."""
+    from pointillist.imaging.io import read_exr
+
+    try:
+        image = read_exr(exr).image
+    except (ValueError, OSError) as error:
+        return f"cannot be read ({str(error).splitlines()[0] if str(error) else type(error).__name__})"
+    if image.shape[:2] != (height, width):
+        return f"is {image.shape[1]}x{image.shape[0]}, its record says {width}x{height}"
+    return ""
+
+
+def record_json(record: RenderRecord) -> dict[str, Any]:
+    """What a record stores: its fields but ``cached`` and ``notice``, which describe one run."""
+    return {k: v for k, v in record.as_dict().items() if k not in ("cached", "notice")}
+
 
 def _write_json(path: Path, data: dict) -> None:
     from pointillist.imaging.io import atomic_write
@@ -202,8 +238,9 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     """Render one task of the sweep and write its EXR and JSON record; picklable.
 
     Skips the render when ``out_dir/renders/<key>/<task>.exr`` and ``.json`` exist
-    (``key``: :func:`scene_key` of the scene file and parameters), returning the
-    stored record with ``cached=True``.
+    (``key``: :func:`scene_key` of the scene's inputs and parameters) and the EXR reads
+    back, returning the stored record with ``cached=True``; a damaged one is rendered
+    again (``notice`` says so).
 
     The first render of a method in a process (with ``warm_up``) is preceded by the
     same render untimed: besides JIT compilation (reported apart anyway), a first
@@ -227,26 +264,33 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     out_dir : str
         The comparison folder.
     key : str, optional
-        :func:`scene_key` of the scene and params (computed when omitted).
+        :func:`scene_key` of the scene's inputs and params (computed when omitted).
     warm_up : bool
         Render untimed first if ``method`` has not rendered in this process yet.
     """
     import pointillist
 
-    task = Task(method, value, int(seed))
-    key = key or scene_key(scene_path, params)
-    exr, record_path = task_paths(out_dir, task, key)
-    record = _load_record(record_path, key, exr)
-    if record is not None:
-        return record
-    exr.parent.mkdir(parents=True, exist_ok=True)
-
     pointillist.setup()
+    from pointillist.channels import channel_layout
     from pointillist.render_output import write_render
     from pointillist.scene import scene_info, timed_render
 
+    task = Task(method, value, int(seed))
+    key = key or scene_key(scene_path, params)
+    exr, record_path = task_paths(out_dir, task, key)
+    record, notice = _load_record(record_path, key, exr)
+    if record is not None:
+        return record
+
     spec = METHODS[method]
     scene = load_configured_scene(scene_path, spec, value, params)
+    if scene_key(scene_path, params) != key:  # read again with the scene: it must still be the scene of `key`
+        raise UsageError(f"scene {scene_path}: it or a file it reads changed during the sweep (the renders so far "
+                         "belong to the scene as it was); run the command again")
+    layout = channel_layout(scene)
+    if not layout.colour:
+        raise UsageError(f"scene {scene_path}: the render has no colour channels (Mitsuba's aov integrator without "
+                         "a nested integrator renders only AOVs): nothing to compare")
     spp = int(value) if spec.parameter == "spp" else None
     warm = None
     if warm_up and method not in _WARMED:
@@ -255,13 +299,13 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     image, timing = timed_render(scene, spp=spp, seed=int(seed))
     info = scene_info(scene)  # after the render: the sampler's own rounding of spp applies
     info.update(method=method, value=float(value), seed=int(seed))
-    write_render(exr, image, scene, scene_path, info, timing, png=False)
+    exr.parent.mkdir(parents=True, exist_ok=True)  # only now: an interrupted render leaves no empty folder
+    write_render(exr, image, scene, scene_path, info, timing, png=False, layout=layout)
     samples = float(info["spp"])
-    names = list(scene.integrator().aov_names())
+    layers = layout.split(image).layers
     for name in ("spp", "sample_count", "samples"):
-        if name in names:  # adaptive methods: the mean of their per-pixel count
-            pixels = np.asarray(image)
-            samples = float(pixels[..., pixels.shape[2] - len(names) + names.index(name)].mean())
+        if name in layers:  # adaptive methods: the mean of their per-pixel count
+            samples = float(layers[name].mean())
             break
     record = RenderRecord(
         method=method, value=float(value), seed=int(seed), spp=samples, exr=f"{key}/{exr.name}",
@@ -270,14 +314,19 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
         time=max(timing.total - timing.compile, 0.0), kernels=timing.kernels,
         cache_hits=timing.cache_hits, scene_key=key, warm_up=warm.total if warm else 0.0,
         warm_up_compile=warm.compile if warm else 0.0)
-    _write_json(record_path, record.as_dict())
+    _write_json(record_path, record_json(record))
+    record.notice = notice
     return record
 
 def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: str, spp: int,
-                     key: str | None = None) -> Path:
-    """Render (or reuse) the reference: :data:`REFERENCE_SAMPLER` at ``spp``; returns its EXR."""
+                     key: str | None = None, log: Callable[[str], None] | None = None) -> Path:
+    """Render (or reuse) the reference: :data:`REFERENCE_SAMPLER` at ``spp``; returns its EXR.
+
+    A damaged cached reference is rendered again; ``log`` gets the notice."""
     record = render_one(scene_path, REFERENCE_SAMPLER, spp, REFERENCE_SEED, params,
                         str(Path(out_dir) / "reference"), key, warm_up=False)
+    if record.notice and log is not None:
+        log(f"compare: notice: reference: {record.notice}")
     return Path(out_dir) / "reference" / "renders" / record.exr
 
 
@@ -285,7 +334,7 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
               maps: dict[str, dict[str, np.ndarray]] | None = None,
-              render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
+              render: Callable[..., RenderRecord] = render_one, key: str | None = None) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
 
     With ``progress``, a progress bar draws on a terminal (standard error a TTY);
@@ -306,21 +355,25 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     from pointillist.imaging.io import read_exr
     from pointillist.imaging.metrics import image_errors
 
-    key = scene_key(scene_path, params)
+    key = key or scene_key(scene_path, params)
     ref_image = read_exr(reference).image
     records = []
     terminal = progress and sys.stderr.isatty()
     bar = tqdm(tasks, desc="compare", unit="render", disable=not terminal)
     for number, task in enumerate(bar, 1):
+        signals.check()
         bar.set_postfix_str(task.stem)
         record = render(scene_path, task.method, task.value, task.seed, params, out_dir, key)
         records.append(record)
+        if record.notice and log is not None:
+            log(f"compare: notice: {record.notice}")
         if progress and not terminal and log is not None:
             log(f"compare {number}/{len(tasks)}: {task.stem} "
                 + ("(reused)" if record.cached else format_time(record.time)))
     digest = image_digest(ref_image)
     reused = 0
     for record in records:
+        signals.check()
         exr = Path(out_dir) / "renders" / record.exr
         score_key = scores_key(exr, digest)
         keep_maps = record.seed == 0                      # the report page shows each point's seed-0 render
@@ -332,7 +385,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
             kept = {}
             record.__dict__.update(image_errors(read_exr(exr).image, ref_image, maps=kept))
             record.scores_key = score_key
-            _write_json(exr.with_suffix(".json"), {k: v for k, v in record.as_dict().items() if k != "cached"})
+            _write_json(exr.with_suffix(".json"), record_json(record))
             if keep_maps:
                 _save_maps(maps_path(exr), score_key, kept)
         if maps is not None and keep_maps:
@@ -354,7 +407,7 @@ def compare_task(call: tuple) -> Any:
 
 def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params: dict[str, str] | None,
                     out_dir: str | os.PathLike, reference_spp: int | None = None,
-                    retries: int = DEFAULT_RETRIES, progress: bool = True) -> int:
+                    retries: int = DEFAULT_RETRIES, progress: bool = True, key: str | None = None) -> int:
     """Render a comparison's missing renders (and its reference) as tasks on ``client``.
 
     Every :class:`Task` (and the reference, when
@@ -367,14 +420,17 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
     scene = str(Path(scene).resolve())
     out_dir = str(Path(out_dir).resolve())
     params = dict(params or {})
-    key = scene_key(scene, params)
+    key = key or scene_key(scene, params)
     calls = []
     if reference_spp:
         calls.append((scene, REFERENCE_SAMPLER, int(reference_spp), REFERENCE_SEED, params,
                       str(Path(out_dir) / "reference"), key, False))  # False: no warm-up render
     calls += [(scene, t.method, t.value, int(t.seed), params, out_dir, key) for t in tasks]
-    todo = [c for c in calls
-            if not all(p.is_file() for p in task_paths(c[5], Task(c[1], c[2], c[3]), key))]
+    todo = []
+    for call in calls:
+        exr, record = task_paths(call[5], Task(call[1], call[2], call[3]), key)
+        if _load_record(record, key, exr)[0] is None:  # missing or damaged
+            todo.append(call)
     keys = [json_key(c) for c in todo]
     run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
               desc="compare on cluster")
@@ -438,58 +494,78 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         For a missing scene, unknown method, an output folder that is a file, a sample
         count Mitsuba cannot take, or a reference of the wrong size.
     """
-    from pointillist.compare_report import write_report
-    from pointillist.scene import check_sample_count, check_scene_file, filter_note
+    import pointillist
+    from pointillist.channels import channel_layout
+    from pointillist.compare_html import REPORT_NAME
+    from pointillist.compare_report import report_paths, write_report
+    from pointillist.plan import Output, Plan, inputs_digest, scene_inputs
+    from pointillist.scene import (check_sample_count, check_scene_file, film_filter, filter_note, instantiate_scene,
+                                   parse_scene, scene_info)
 
     params = dict(params or {})
     tasks = sweep_tasks(methods, spp, seeds)
     scene = check_scene_file(scene)
     out = Path(out_dir) if out_dir else Path("out") / "compare" / scene.stem
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out: {out} exists and is not a folder")
     if reference is not None and not Path(reference).is_file():
         raise UsageError(f"--reference: no such file: {reference}")
-    size, rfilter = _scene_size(scene, params)
+    # The plan, before any work: the folder and every file of the report writable, none an input.
+    files = list(report_paths(out).values()) + ([out / REPORT_NAME] if report else [])
+    plan = Plan(inputs=[scene] + ([Path(reference)] if reference is not None else []),
+                outputs=[Output(out, "--out", folder=True)]
+                + [Output(path, f"--out ({path.name})", make_parent=True) for path in files]
+                + [Output(out / "renders", "--out (renders)", folder=True),
+                   Output(out / "reference", "--out (reference)", folder=True)])
+    plan.check()
+    pointillist.setup()
+    parsed = parse_scene(scene, params)
+    inputs = scene_inputs(parsed)
+    plan.add(inputs=inputs)
+    key = inputs_digest(inputs, params)[:12]
+    loaded = instantiate_scene(parsed)  # bad scenes fail before any render
+    info, rfilter, layout = scene_info(loaded), film_filter(loaded), channel_layout(loaded)
+    del loaded
+    if not layout.colour:
+        raise UsageError(f"scene {scene}: the render has no colour channels (Mitsuba's aov integrator without a "
+                         f"nested integrator renders only AOVs: {', '.join(layout.names)}): nothing to compare")
+    size = (info["width"], info["height"])
     for count in [t.value for t in tasks if sweep_parameter(t.method) == "spp"] + (
             [] if reference else [reference_spp]):
         check_sample_count(*size, int(count))  # before any render starts (and its progress bar)
     if reference is not None:
-        _check_reference(Path(reference), size)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise UsageError(f"--out: cannot create the folder {out} ({error.strerror or error})") from None
-    notes: list[str] = [filter_note(rfilter)]
-    log(notes[0])
-    cluster_renders = 0
-    if workers or scheduler:
-        with open_client(workers, scheduler) as client:
-            cluster_renders = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
-                                              reference_spp=None if reference else reference_spp,
-                                              progress=progress)
-        log(f"{cluster_renders} renders done on the cluster")
-    if reference is not None:
-        reference = Path(reference)
-    else:
-        log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
-        reference = render_reference(str(scene), params, str(out), reference_spp)
-        taken = _reference_spp(_check_reference(reference, size).metadata)
-        if taken is not None and taken != reference_spp:
-            note = (f"reference: the stratified sampler took {taken} spp for the {reference_spp} asked "
-                    "(it rounds up to a square)")
-            notes.append(note)
-            log(note)
-    maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
-    records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
-                        log=log, maps=maps)
-    title = f"Sampler comparison: {scene.name}"
-    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
-    if report:
-        from pointillist.compare_html import write_html_report
+        _check_reference(Path(reference), size, what="--reference")
+    with plan.writing():
+        notes: list[str] = [filter_note(rfilter)]
+        log(notes[0])
+        cluster_renders = 0
+        if workers or scheduler:
+            with open_client(workers, scheduler) as client:
+                cluster_renders = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
+                                                  reference_spp=None if reference else reference_spp,
+                                                  progress=progress, key=key)
+            log(f"{cluster_renders} renders done on the cluster")
+        if reference is not None:
+            reference = Path(reference)
+        else:
+            log(f"reference: {reference_spp} spp with Mitsuba's stratified sampler (cached in {out / 'reference'})")
+            reference = render_reference(str(scene), params, str(out), reference_spp, key, log=log)
+            taken = _reference_spp(_check_reference(reference, size, what="reference").metadata)
+            if taken is not None and taken != reference_spp:
+                note = (f"reference: the stratified sampler took {taken} spp for the {reference_spp} asked "
+                        "(it rounds up to a square)")
+                notes.append(note)
+                log(note)
+        maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
+        records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
+                            progress=progress, log=log, maps=maps, key=key)
+        signals.check()
+        title = f"Sampler comparison: {scene.name}"
+        paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
+        if report:
+            from pointillist.compare_html import write_html_report
 
-        page = write_html_report(records, out, scene=str(scene), reference=reference, title=title, maps=maps)
-        paths["html"] = page.path
-        notes.append(page.summary)
+            page = write_html_report(records, out, scene=str(scene), reference=reference, title=title, maps=maps)
+            paths["html"] = page.path
+            notes.append(page.summary)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
                          cluster_renders=cluster_renders, notes=notes)
 
@@ -500,28 +576,27 @@ def _reference_spp(metadata: dict) -> int | None:
     return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
-def _scene_size(scene: Path, params: dict) -> tuple[tuple[int, int], str]:
-    """``((width, height), film filter)`` of the scene (loads it once: bad scenes fail before any render)."""
-    import pointillist
-
-    pointillist.setup()
-    from pointillist.scene import film_filter, load_scene, scene_info
-
-    loaded = load_scene(scene, params)
-    info = scene_info(loaded)
-    return (info["width"], info["height"]), film_filter(loaded)
-
-
-def _check_reference(reference: Path, size: tuple[int, int]):
-    """The reference must have the render size ``(width, height)``; returns it as read (an ``EXRImage``)."""
+def _check_reference(reference: Path, size: tuple[int, int], *, what: str = "--reference"):
+    """The reference must read as a finite image of the render size ``(width, height)``; returns it
+    as read (an ``EXRImage``). A NaN or infinite value would make every error against it NaN or
+    infinite (and their log-log plots impossible): refused, with the count of each kind."""
     from pointillist.imaging.io import read_exr
 
     try:
         exr = read_exr(reference)
     except ValueError as error:
-        raise UsageError(f"--reference: {error}") from None
+        raise UsageError(f"{what}: {error}") from None
     image = exr.image
     if image.shape[:2] != (size[1], size[0]):
-        raise UsageError(f"--reference: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
+        raise UsageError(f"{what}: {reference} is {image.shape[1]}x{image.shape[0]}, the scene "
                          f"renders {size[0]}x{size[1]}")
+    bad = ~np.isfinite(image)
+    if bad.any():
+        counts = [(int(np.count_nonzero(image == np.inf)), "+inf"), (int(np.count_nonzero(image == -np.inf)), "-inf"),
+                  (int(np.count_nonzero(np.isnan(image))), "NaN")]
+        y, x = (int(v) for v in np.argwhere(bad.reshape(image.shape[0], image.shape[1], -1).any(axis=2))[0])
+        kinds = ", ".join(f"{n} {name}" for n, name in counts if n)
+        cause = "" if what == "--reference" else " (the scene renders them)"
+        raise UsageError(f"{what}: {reference} holds non-finite values{cause}: {kinds} (first at pixel x={x}, "
+                         f"y={y}); errors against it would be NaN or infinite: expected a finite reference")
     return exr

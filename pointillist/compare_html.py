@@ -39,8 +39,11 @@ from pointillist.compare_methods import setting_label, sweep_parameter
 from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, slopes, summarise
 from pointillist.render_output import SAMPLE_COUNT_LAYER
 
-__all__ = ["ReportPage", "write_html_report", "DEFAULT_MAX_BYTES", "encode_half", "colormap_table",
-           "subsample_stride", "template_text"]
+__all__ = ["REPORT_NAME", "ReportPage", "write_html_report", "DEFAULT_MAX_BYTES", "encode_half",
+           "colormap_table", "subsample_stride", "template_text"]
+
+#: The page's file name in the comparison folder.
+REPORT_NAME = "report.html"
 
 #: Size budget of report.html in bytes (issue 20: a default sweep's page stays under about 30 MB).
 DEFAULT_MAX_BYTES = 30_000_000
@@ -82,12 +85,20 @@ def template_text(name: str) -> str:
 def encode_half(array: np.ndarray) -> str:
     """``array`` as little-endian float16, base64 (the page decodes it with a 65536-entry table).
 
+    Finite values beyond float16's range (+-65504) are clipped to it (the page shows them as the
+    brightest value) instead of overflowing to infinity; NaN and infinities stay as they are.
+
     Examples
     --------
     >>> encode_half(np.array([1.0, -2.0, 0.5]))
     'ADwAwAA4'
+    >>> encode_half(np.array([3e38, -1e10])) == encode_half(np.array([65504.0, -65504.0]))
+    True
     """
-    data = np.ascontiguousarray(np.asarray(array, dtype="<f2"))
+    values = np.asarray(array, dtype=np.float64)
+    half = float(np.finfo(np.float16).max)
+    values = np.where(np.isfinite(values), np.clip(values, -half, half), values)
+    data = np.ascontiguousarray(values.astype("<f2"))
     return base64.b64encode(data.tobytes()).decode("ascii")
 
 
@@ -259,7 +270,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         "title": html.escape(data["title"]), "table": "\n".join(table),
         "notes": " ".join(notes), "data": _script_safe(json.dumps(data, separators=(",", ":"), allow_nan=False)),
         "script": _script_safe(template_text("report.js"))})
-    path = out / "report.html"
+    path = out / REPORT_NAME
     encoded = page.encode("utf-8")
     atomic_write(path, lambda tmp: Path(tmp).write_bytes(encoded))
     return ReportPage(path=path, bytes=len(encoded), stride=stride, full_size=(width, height),

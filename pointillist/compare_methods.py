@@ -10,13 +10,10 @@ plugin (``stratified``, ``multijitter``, ``orthogonal``, ``ldsampler``,
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from pointillist.errors import UsageError
@@ -185,10 +182,12 @@ def configure_scene(xml_text: str, method: Method, value: float) -> str:
     return ET.tostring(root, encoding="unicode")
 
 def scene_key(scene_path: str | os.PathLike, params: dict[str, str] | None = None) -> str:
-    """A short hash of the scene file's bytes and parameters (cache validity)."""
-    digest = hashlib.sha1(Path(scene_path).read_bytes())
-    digest.update(json.dumps(sorted((params or {}).items())).encode())
-    return digest.hexdigest()[:12]
+    """A short hash of the scene's inputs (the scene file and every file it reads) and parameters
+    (:func:`pointillist.plan.scene_digest`): the validity of cached renders. Parses the scene
+    (:func:`pointillist.setup` first)."""
+    from pointillist.plan import scene_digest
+
+    return scene_digest(scene_path, params)[:12]
 
 def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: float,
                           params: dict[str, str] | None = None):

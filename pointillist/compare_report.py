@@ -22,8 +22,8 @@ import numpy as np
 
 from pointillist.compare_methods import setting_label, sweep_parameter
 
-__all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "write_report",
-           "format_time", "results_table", "TIMING_FLOOR"]
+__all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "report_paths",
+           "write_report", "format_time", "results_table", "TIMING_FLOOR"]
 
 
 #: Renders shorter than this (seconds) are too short to time reliably here: timer resolution,
@@ -184,6 +184,13 @@ def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[
                       time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}"])
     return header, cells
 
+def report_paths(out_dir: str | os.PathLike) -> dict[str, Path]:
+    """The files :func:`write_report` writes into ``out_dir``, by role."""
+    out = Path(out_dir)
+    return {"csv": out / "results.csv", "md": out / "results.md",
+            "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png"}
+
+
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
                  reference: str, title: str | None = None, notes: Sequence[str] = ()) -> dict[str, Path]:
     """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``.
@@ -192,9 +199,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     """
     from pointillist.imaging.io import atomic_write
 
-    out = Path(out_dir)
-    paths = {"csv": out / "results.csv", "md": out / "results.md",
-             "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png"}
+    paths = report_paths(out_dir)
     def write_csv(tmp: str) -> None:
         with open(tmp, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")

@@ -218,10 +218,9 @@ def task_key(function: Callable, task: Any) -> str:
     """A stable key for ``function(task)``: SHA-256 of the function's name and the task's token.
 
     The token is ``task.cache_token()`` when the task has one (as
-    :class:`RenderTask` does: its fields and the scene file's hash), else the
-    task itself, which must then be JSON-serialisable (numbers, strings,
-    lists, dicts). Scene assets other than the XML file (meshes, textures,
-    included files) are not hashed: clear the cache when you change them.
+    :class:`pointillist.tiles.RenderTask` does: its fields and the hash of the
+    scene's inputs, the XML and every file it reads), else the task itself,
+    which must then be JSON-serialisable (numbers, strings, lists, dicts).
     """
     token = task.cache_token() if hasattr(task, "cache_token") else task
     name = f"{getattr(function, '__module__', '?')}.{getattr(function, '__qualname__', repr(function))}"

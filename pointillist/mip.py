@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from pointillist import checks
+from pointillist import signals
 from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
@@ -410,12 +411,14 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     UsageError
         For an output name or option combination that cannot work, before any work.
     """
+    import importlib.util
+
+    from pointillist.plan import Output, Plan
+
     out = Path(output)
     suffix = out.suffix.lower()
     if suffix not in (".png", ".exr"):
         raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
-    if not out.parent.is_dir():
-        raise UsageError(f"--output: folder {out.parent} does not exist")
     if native and perspective:
         raise UsageError("--native-size needs an orthographic view (drop --perspective)")
     try:
@@ -427,26 +430,34 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     if turntable and neurological:
         raise UsageError("--neurological is for still views: a turntable passes through lateral views, which have "
                          "no left-right axis to mirror, so its frames would flip there")
+    # The plan, before any work: every frame and the GIF writable, none of them the volume (or
+    # inside the folder of a DICOM series).
+    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
+             else [out])
+    gif = out.with_suffix(".gif") if turntable and suffix == ".png" else None
+    notes = []
+    if gif is not None and importlib.util.find_spec("imageio") is None:
+        gif = None
+        notes.append("imageio not installed: no GIF written")
+    Plan(inputs=[Path(volume_path)],
+         outputs=[Output(name, "--output") for name in names] + ([Output(gif, "--output (GIF)")] if gif else [])
+         ).check()
     import pointillist
 
     pointillist.setup()
     from tqdm import tqdm
 
-    from pointillist.imaging.io import check_output_path
     from pointillist.imaging.volumes import load_volume
     from pointillist.imaging.window import colormap_lut, parse_window
 
     display = parse_window(window) if window else None
     lut = colormap_lut(colormap)
-    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
-             else [out])
-    for name in names:  # before any work
-        check_output_path(name, [volume_path], name="--output")
     start = time.perf_counter()
     load = {"frame": frame, "series": series}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         volume = load_volume(volume_path, spacing=list(spacing) if spacing else None, **load)
+    signals.check()
     load_s = time.perf_counter() - start
     views = _frame_views(view, azimuth, elevation, turntable)
     options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
@@ -460,7 +471,8 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
                                 scheduler=scheduler)
         project_s = sum(r["seconds"] for r in remote)
     for k, (frame_view, name) in enumerate(tqdm(list(zip(views, names)), desc="mip", unit="frame",
-                                                disable=len(names) == 1 or not progress)):
+                                                disable=True if len(names) == 1 or not progress else None)):
+        signals.check()
         if remote is not None:
             image = remote[k]["image"]
         else:
@@ -474,18 +486,12 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
         frames.append(_write_frame(name, image, volume, volume_path, display, lut, frame_view, mode=mode,
                                    interpolation=interpolation, step=step, neurological=neurological,
                                    labels=labels))
-    gif, notes = None, []
-    if turntable and suffix == ".png":
-        try:
-            import imageio.v2 as imageio
-        except ImportError:
-            notes.append("imageio not installed: no GIF written")
-        else:
-            gif = out.with_suffix(".gif")
-            check_output_path(gif, [volume_path], name="--output")
-            from pointillist.imaging.io import atomic_write
+    if gif is not None:
+        import imageio.v2 as imageio
 
-            atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
+        from pointillist.imaging.io import atomic_write
+
+        atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
     texture = integrator.texture_info() if remote is None else remote[0]["texture"]
     return MipResult(outputs=names, gif=gif, volume=volume, texture=texture, window=display,
                      load_seconds=load_s, project_seconds=project_s, notes=notes,

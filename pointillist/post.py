@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pointillist import signals
 from pointillist.errors import UsageError
 
 __all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot"]
@@ -149,6 +150,7 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         For a missing input, an output that is not .png/.exr, is the input or a folder,
         and any step that refuses its arguments (one line naming the step).
     """
+    from pointillist.plan import Output, Plan
     from pointillist.steps import parse_steps
 
     if source is None:
@@ -162,29 +164,18 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
         raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
     if not source.is_file():
         raise UsageError(f"input: no such file: {source}")
-    if out.exists() and out.resolve() == source.resolve():
-        raise UsageError(f"--output: refusing to overwrite the input {source}")
-    if not out.parent.is_dir():
-        raise UsageError(f"--output: folder {out.parent} does not exist")
-    if out.is_dir():
-        raise UsageError(f"--output: {out} is a folder, expected a file name")
-    from pointillist.imaging.io import check_output_path
-
-    try:
-        check_output_path(out, [source], name="--output")
-    except ValueError as error:
-        raise UsageError(str(error)) from None
+    # The plan, before any work: the input image and any file a step reads (a table), the
+    # output and the plot.
+    inputs = [source] + [Path(value) for _, kwargs in pipeline for value in kwargs.values()
+                         if isinstance(value, str) and Path(value).is_file()]
+    outputs = [Output(out, "--output")]
     plot_path = None
     if plot or plot_file:
         plot_path = Path(plot_file) if plot_file else out.with_name(out.stem + "_histogram.png")
         if plot_path.suffix.lower() != ".png":
             raise UsageError(f"--plot-file: expected a .png file name, got {plot_path}")
-        if plot_path.resolve() == out.resolve():
-            raise UsageError(f"--plot-file: {plot_path} is the --output file")
-        try:
-            check_output_path(plot_path, [source], name="--plot")
-        except ValueError as error:
-            raise UsageError(str(error)) from None
+        outputs.append(Output(plot_path, "--plot-file" if plot_file else "--plot"))
+    Plan(inputs=inputs, outputs=outputs).check()
 
     from pointillist.imaging.io import read_image, write_exr, write_png
 
@@ -200,15 +191,16 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     applied = apply_steps(image, pipeline, linear=source.suffix.lower() == ".exr", report=report)
     current, linear, done, notes, reports = (applied.image, applied.linear, applied.done,
                                              dropped + applied.notes, applied.reports)
+    signals.check()  # a safe point: the steps ran, nothing is written yet
     if out.suffix.lower() == ".exr":
-        write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=[source])
+        write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=inputs)
     elif linear:
-        write_png(out, current, inputs=[source])
+        write_png(out, current, inputs=inputs)
     else:
-        write_png(out, current, srgb=False, max_value=255.0, inputs=[source])
+        write_png(out, current, srgb=False, max_value=255.0, inputs=inputs)
     if plot_path is not None:
         histogram_plot(plot_path, before, current, linear_before=source.suffix.lower() == ".exr",
-                       title=f"{source.name}: {'; '.join(done)}", inputs=[source])
+                       title=f"{source.name}: {'; '.join(done)}", inputs=inputs)
     return PostResult(output=out, done=done, notes=notes, reports=reports, plot=plot_path)
 
 

@@ -42,21 +42,20 @@ are correlated (a seed-free ``grid`` gives identical passes: estimate 0) and of 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-import signal
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pointillist.imaging.metrics import RELMSE_EPSILON
-from pointillist.distributed import file_digest
+from pointillist import signals
 from pointillist.errors import UsageError
+from pointillist.imaging.metrics import RELMSE_EPSILON
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
 __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "pass_seed",
@@ -76,8 +75,8 @@ TARGET_PASS_SECONDS = 2.0
 #: Auto pass size: samples (pixels x spp) of the first pass, which also compiles the kernels.
 FIRST_PASS_SAMPLES = 2**18
 
-#: Format version of the checkpoint file.
-CHECKPOINT_VERSION = 1
+#: Format version of the checkpoint file (2: the inputs' digest and a checksum of the contents).
+CHECKPOINT_VERSION = 2
 
 _U32 = 0xFFFFFFFF
 
@@ -338,17 +337,22 @@ class Budget:
         return int(n)
 
 
-def _colour_channels(scene, image) -> int:
-    return max(min(int(image.shape[2]) - len(scene.integrator().aov_names()), 3), 1)
-
-
 def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, accumulator: Accumulator,
-            start: PassStats, clock: Callable[[], float]) -> Iterator[tuple[Accumulator, PassStats, RenderTiming]]:
-    """The pass loop: render, accumulate, estimate; yields ``(accumulator, stats, timing)``."""
+            start: PassStats, clock: Callable[[], float],
+            channels: int | None = None) -> Iterator[tuple[Accumulator, PassStats, RenderTiming]]:
+    """The pass loop: render, accumulate, estimate; yields ``(accumulator, stats, timing)``.
+
+    ``channels``: the leading channels the estimate takes (the colour; default from the scene's
+    :func:`pointillist.channels.channel_layout`)."""
     import drjit as dr
     import mitsuba as mi
 
-    acc, stats, channels = accumulator, start, None
+    if channels is None:
+        from pointillist.channels import channel_layout
+
+        layout = channel_layout(scene, sensor)
+        channels = len(layout.colour) or layout.channels
+    acc, stats = accumulator, start
     while True:
         spp = int(plan(stats))
         if spp < 1:
@@ -356,7 +360,6 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
         seed_k = pass_seed(seed, acc.passes)
         begin = clock()
         image, timing = timed_render(scene, spp=spp, seed=dr.opaque(mi.UInt32, seed_k), sensor=sensor)
-        channels = channels or _colour_channels(scene, image)
         new = acc.add(image, spp)
         estimate = new.estimated_relmse(channels)
         seconds = clock() - begin
@@ -443,18 +446,38 @@ def progress_paths(out: str | Path) -> tuple[Path, Path]:
 
 
 def scene_fingerprint(scene, scene_path: str | Path, params: dict[str, str] | None, seed: int,
-                      sensor: int = 0) -> dict[str, Any]:
-    """What a checkpoint must match to be resumed: the scene file's SHA-256, ``-D`` values, seed, film.
+                      sensor: int = 0, *, inputs: Sequence[str | Path] | None = None) -> dict[str, Any]:
+    """What a checkpoint must match to be resumed: the SHA-256 of the scene's inputs (the scene file
+    and every file it reads: includes, textures, meshes, volumes; :func:`pointillist.plan.inputs_digest`)
+    with the ``-D`` values, the seed, the film, integrator and sampler.
 
-    Files the scene XML refers to (textures, volumes) are not hashed.
+    ``inputs``: the scene's inputs when known (:func:`pointillist.plan.scene_inputs`); else the
+    scene file is parsed again to list them.
     """
     import mitsuba as mi
 
+    from pointillist.plan import inputs_digest, scene_inputs
+    from pointillist.scene import parse_scene
+
+    if inputs is None:
+        inputs = scene_inputs(parse_scene(scene_path, params))
     info = scene_info(scene, sensor)
-    return {"scene_sha256": file_digest(scene_path),
+    return {"inputs_sha256": inputs_digest(inputs, params),
             "params": json.dumps(dict(sorted((params or {}).items()))), "seed": int(seed), "sensor": int(sensor),
             "film": f"{info['width']}x{info['height']}", "integrator": info["integrator"],
             "sampler": info["sampler"], "variant": mi.variant()}
+
+
+def _checksum(arrays: dict[str, Any]) -> str:
+    """SHA-256 of a checkpoint's contents (every entry but the checksum, by name, dtype, shape, bytes)."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        if name == "checksum":
+            continue
+        value = np.ascontiguousarray(np.asarray(arrays[name]))
+        digest.update(f"{name}|{value.dtype.str}|{value.shape}|".encode())
+        digest.update(value.tobytes())
+    return digest.hexdigest()
 
 
 def _save_checkpoint(path: Path, acc: Accumulator, stats: PassStats, history: list, identity: dict) -> None:
@@ -463,34 +486,65 @@ def _save_checkpoint(path: Path, acc: Accumulator, stats: PassStats, history: li
     arrays = dict(acc.to_numpy(), history=np.asarray(history, np.float64).reshape(-1, 4),
                   stats=np.array(json.dumps(asdict(stats))), identity=np.array(json.dumps(identity)),
                   version=np.int64(CHECKPOINT_VERSION))
+    arrays["checksum"] = np.array(_checksum(arrays))
     atomic_write(path, lambda tmp: np.savez(tmp, **arrays))
 
 
-def _load_checkpoint(path: Path, identity: dict) -> tuple[Accumulator, PassStats, list]:
+def _load_checkpoint(path: Path, identity: dict, channels: int | None = None) -> tuple[Accumulator, PassStats, list]:
+    """Read a checkpoint; UsageError unless it is one this version wrote, unchanged (its checksum),
+    for the same scene and settings (``identity``), and consistent (``channels``: the render's)."""
     if not path.is_file():
         raise UsageError(f"--resume: no checkpoint {path} (write one with --checkpoint SECONDS)")
     try:
         with np.load(path, allow_pickle=False) as data:
-            if int(data["version"]) != CHECKPOINT_VERSION:
-                raise UsageError(f"--resume: checkpoint {path} has format version {int(data['version'])}, "
+            if "version" not in data.files or int(data["version"]) != CHECKPOINT_VERSION:
+                version = int(data["version"]) if "version" in data.files else "none"
+                raise UsageError(f"--resume: checkpoint {path} has format version {version}, "
                                  f"expected {CHECKPOINT_VERSION}")
-            saved = json.loads(str(data["identity"]))
-            stats = PassStats(**json.loads(str(data["stats"])))
-            acc = Accumulator.from_numpy({k: data[k] for k in ("mean", "m2", "weight", "passes")})
-            history = [tuple(row) for row in np.asarray(data["history"], np.float64)]
+            arrays = {name: data[name] for name in data.files}
     except UsageError:
         raise
     except Exception as error:  # noqa: BLE001 - any unreadable file is a usage error here
         raise UsageError(f"--resume: {path} is not a readable checkpoint ({type(error).__name__}: {error})") from None
+    if "checksum" not in arrays or str(arrays["checksum"]) != _checksum(arrays):
+        raise UsageError(f"--resume: checkpoint {path} was changed or damaged after it was written "
+                         "(its checksum does not match its contents)")
+    try:
+        saved = json.loads(str(arrays["identity"]))
+        stats = PassStats(**json.loads(str(arrays["stats"])))
+        mean, m2 = np.asarray(arrays["mean"]), np.asarray(arrays["m2"])
+        weight, passes = int(arrays["weight"]), int(arrays["passes"])
+        history = [tuple(float(v) for v in row) for row in np.asarray(arrays["history"], np.float64).reshape(-1, 4)]
+    except (KeyError, TypeError, ValueError) as error:
+        raise UsageError(f"--resume: {path} is not a readable checkpoint ({type(error).__name__}: {error})") from None
     for key, value in identity.items():
         if saved.get(key) != value:
-            what = ("another scene file (its SHA-256 differs)" if key == "scene_sha256"
+            what = ("another scene (the scene file or a file it reads changed)" if key == "inputs_sha256"
                     else f"other settings ({key} {saved.get(key)!r}, now {value!r})")
             raise UsageError(f"--resume: checkpoint {path} was made from {what}")
-    if acc.passes != stats.passes or acc.weight != stats.spp \
-            or tuple(acc.mean.shape)[:2] != (stats.height, stats.width):
-        raise UsageError(f"--resume: checkpoint {path} is inconsistent (passes, spp or size)")
-    return acc, stats, history
+    problem = _inconsistency(mean, m2, weight, passes, stats, history, channels)
+    if problem:
+        raise UsageError(f"--resume: checkpoint {path} is inconsistent ({problem})")
+    return Accumulator.from_numpy({"mean": mean, "m2": m2, "weight": weight, "passes": passes}), stats, history
+
+
+def _inconsistency(mean, m2, weight: int, passes: int, stats: PassStats, history: list,
+                   channels: int | None) -> str:
+    """What is wrong with a checkpoint's numbers ('' when nothing is): counts in range and agreeing
+    with each other, arrays of the film's shape, times finite."""
+    if mean.ndim != 3 or m2.shape != mean.shape or mean.dtype != np.float64 or m2.dtype != np.float64:
+        return f"sums of shape {mean.shape} and {m2.shape}, expected two equal (H, W, C) float64 arrays"
+    if tuple(mean.shape[:2]) != (stats.height, stats.width) or (channels is not None and mean.shape[2] != channels):
+        return f"sums of shape {mean.shape}, the render is {stats.height}x{stats.width}x{channels or mean.shape[2]}"
+    largest = max(MAX_SAMPLES // max(stats.width * stats.height, 1), 1)
+    if not 1 <= passes <= weight <= passes * largest:
+        return f"{passes} passes of {weight} spp in all (each pass takes 1..{largest} spp)"
+    if stats.passes != passes or stats.spp != weight or len(history) != passes:
+        return (f"{passes} passes and {weight} spp in the sums, {stats.passes} and {stats.spp} in the stats, "
+                f"{len(history)} rows of history")
+    if not (math.isfinite(stats.seconds) and stats.seconds >= 0 and math.isfinite(stats.compile_seconds)):
+        return f"render seconds {stats.seconds}"
+    return ""
 
 
 # ------------------------------------------------------------------------------ the workflow
@@ -501,7 +555,8 @@ class ProgressiveResult:
     ``image``: (H, W, C) float32 mean of all samples; ``variance``: (H, W) float32 variance of
     the pixel mean averaged over the colour channels; ``history``: one ``(pass, seconds, spp,
     estimated_relmse)`` row per pass; ``timing``: phases summed over the passes (``total`` = the
-    render seconds); ``stop``: ``"spp"``, ``"time"``, ``"error"`` or ``"interrupted"``.
+    render seconds); ``stop``: ``"spp"``, ``"time"``, ``"error"`` or ``"interrupted"``; ``signum``:
+    the signal that interrupted it (``signal.SIGINT``/``SIGTERM``; None otherwise).
     """
 
     image: np.ndarray
@@ -514,29 +569,7 @@ class ProgressiveResult:
     resumed_from: int = 0
     checkpoints: int = 0
     metadata: dict[str, Any] = field(default_factory=dict)
-
-
-class _StopOnSignals:
-    """While active (main thread only), SIGINT and SIGTERM ask the pass loop to stop after the pass
-    in flight; a second one raises KeyboardInterrupt at once (abandoning that pass). The previous
-    handlers (Python's, or the command line's) come back on exit."""
-
-    def __enter__(self):
-        self.requested, self.previous = None, {}
-        if threading.current_thread() is threading.main_thread():
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                self.previous[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        if self.requested is not None:
-            raise KeyboardInterrupt(f"signal {signum} again")
-        self.requested = signum
-
-    def __exit__(self, *exc):
-        for signum, handler in self.previous.items():
-            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        return False
+    signum: int | None = None
 
 
 def _is_interrupt(error: BaseException | None) -> bool:
@@ -583,7 +616,8 @@ def _postfix(budget: Budget, stats: PassStats) -> str:
 def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params: dict[str, str] | None = None,
                        seed: int = 0, sensor: int = 0, checkpoint_seconds: float | None = None,
                        checkpoint_file: str | Path | None = None, resume: bool = False, progress: bool = True,
-                       clock: Callable[[], float] = time.perf_counter) -> ProgressiveResult:
+                       clock: Callable[[], float] = time.perf_counter, inputs: Sequence[str | Path] | None = None,
+                       layout=None, abandon: Callable[[ProgressiveResult], None] | None = None) -> ProgressiveResult:
     """Render ``scene`` in passes until ``budget`` is spent; Ctrl-C or SIGTERM keep what is done.
 
     Parameters
@@ -607,14 +641,26 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         Draw a tqdm bar on stderr (only when stderr is a terminal; it is cleared at the end).
     clock : callable
         Wall clock in seconds (injectable for tests).
+    inputs : sequence of paths, optional
+        The scene's inputs (:func:`pointillist.plan.scene_inputs`), whose contents the checkpoint's
+        fingerprint holds; listed from ``scene_path`` when not given.
+    layout : pointillist.channels.ChannelLayout, optional
+        The render's channels (read from ``scene`` when not given): the estimate and the variance
+        take the colour channels.
+    abandon : callable, optional
+        Under ``pointillist``'s signal boundary, a second signal during the passes ends the process
+        at once; ``abandon(result)`` is then called (from another thread, numpy data only) with
+        the passes done, to write them; the checkpoint is written too.
 
     Returns
     -------
     ProgressiveResult
-        With ``interrupted=True`` after SIGINT (Ctrl-C) or SIGTERM: the pass in flight finishes
-        (a second signal abandons it) and the result holds the passes done; also after a
-        KeyboardInterrupt raised elsewhere. Re-raised when no pass was done.
+        With ``interrupted=True`` after SIGINT (Ctrl-C) or SIGTERM (``signum`` says which): the
+        pass in flight finishes and the result holds the passes done; also after a
+        KeyboardInterrupt raised elsewhere (re-raised when no pass was done).
     """
+    from pointillist.channels import channel_layout
+
     seed = _check_seed(seed)
     if not isinstance(budget, Budget):
         raise TypeError(f"budget: expected a Budget, got {type(budget).__name__}")
@@ -622,28 +668,47 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         raise ValueError(f"checkpoint_seconds: expected a positive finite number, got {checkpoint_seconds!r}")
     if (checkpoint_seconds is not None or resume) and checkpoint_file is None:
         raise ValueError("checkpoint_file: needed with checkpoint_seconds or resume")
+    layout = layout or channel_layout(scene, sensor)
+    channels = len(layout.colour) or layout.channels  # the colour channels lead; none: every channel
     checkpoint_file = None if checkpoint_file is None else Path(checkpoint_file)
-    identity = scene_fingerprint(scene, scene_path, params, seed, sensor) if checkpoint_file else {}
+    identity = scene_fingerprint(scene, scene_path, params, seed, sensor, inputs=inputs) if checkpoint_file else {}
     acc, history = Accumulator.empty(), []
     start = _start_stats(scene, sensor, acc)
     if resume:
-        acc, start, history = _load_checkpoint(checkpoint_file, identity)
-    resumed_from, stats, stop, checkpoints = acc.passes, start, None, 0
+        acc, start, history = _load_checkpoint(checkpoint_file, identity, layout.channels)
+    resumed_from, stats, stop, checkpoints, signum = acc.passes, start, None, 0, None
     sums = [0.0, 0.0, 0.0, 0, 0]  # trace, compile, execute, kernels, cache hits
+    # What a second signal writes (read by the signal watcher's thread: replaced, never changed).
+    done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums)}
+
+    def finish(stop: str, signum: int | None, *, done: dict) -> ProgressiveResult:
+        return _result(done["acc"], done["stats"], done["history"], done["sums"], stop, signum, budget, seed,
+                       resumed_from, checkpoints, channels)
+
+    def abandoned() -> None:
+        current = dict(done)
+        if current["acc"].passes == resumed_from:
+            return
+        if checkpoint_seconds is not None:
+            _save_checkpoint(checkpoint_file, current["acc"], current["stats"], current["history"], identity)
+        if abandon is not None:
+            abandon(finish("interrupted", signals.received(), done=current))
+
     last_write = clock()
     bar = _bar(budget, start, progress)
     try:
-        with _StopOnSignals() as signals:
+        with signals.deferred() as requested, signals.on_abandon(abandoned):
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
-                                            clock=clock):
+                                            clock=clock, channels=channels):
                 history.append((new.passes, new.seconds, new.spp, new.estimated_relmse))
                 sums = [sums[0] + timing.trace, sums[1] + timing.compile, sums[2] + timing.execute,
                         sums[3] + timing.kernels, sums[4] + timing.cache_hits]
                 bar.update(_bar_position(budget, new) - _bar_position(budget, stats))
                 stats = new
+                done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums)}
                 bar.set_postfix_str(_postfix(budget, stats), refresh=False)
-                if signals.requested is not None:
-                    stop = "interrupted"
+                if requested() is not None:  # first signal: stop after the pass in flight
+                    stop, signum = "interrupted", requested()
                     break
                 if checkpoint_seconds is not None and clock() - last_write >= checkpoint_seconds:
                     _save_checkpoint(checkpoint_file, acc, stats, history, identity)
@@ -658,9 +723,20 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     if checkpoint_seconds is not None and acc.passes > resumed_from:
         _save_checkpoint(checkpoint_file, acc, stats, history, identity)
         checkpoints += 1
-    channels = _colour_channels(scene, acc.mean)
+    return finish(stop, (signum or signals.received()) if stop == "interrupted" else None,
+                  done={"acc": acc, "stats": stats, "history": history, "sums": sums})
+
+
+def _result(acc: Accumulator, stats: PassStats, history: list, sums: list, stop: str, signum: int | None,
+            budget: Budget, seed: int, resumed_from: int, checkpoints: int, channels: int) -> ProgressiveResult:
+    """The :class:`ProgressiveResult` of the passes in ``acc`` (numpy only: also called from the
+    signal watcher's thread while the main thread renders)."""
     image = acc.mean.numpy().astype(np.float32)
-    variance = acc.variance_of_mean().numpy()[..., :channels].mean(axis=2).astype(np.float32)
+    if acc.passes >= 2:
+        variance = acc.m2.numpy()[..., :channels] * (1.0 / ((acc.passes - 1) * acc.weight))
+    else:
+        variance = np.zeros(tuple(acc.mean.shape)[:2] + (channels,))
+    variance = variance.mean(axis=2).astype(np.float32)
     timing = RenderTiming(trace=sums[0], compile=sums[1], execute=sums[2], total=stats.seconds, kernels=int(sums[3]),
                           cache_hits=int(sums[4]))
     metadata = {"spp": stats.spp, "passes": stats.passes, "estimated_relmse": stats.estimated_relmse,
@@ -672,9 +748,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
             metadata[name] = value
     if resumed_from:
         metadata["resumed_from_passes"] = resumed_from
-    return ProgressiveResult(image=image, variance=variance, stats=stats, history=history, timing=timing,
+    return ProgressiveResult(image=image, variance=variance, stats=stats, history=list(history), timing=timing,
                              interrupted=stop == "interrupted", stop=stop, resumed_from=resumed_from,
-                             checkpoints=checkpoints, metadata=metadata)
+                             checkpoints=checkpoints, metadata=metadata, signum=signum)
 
 
 def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=()) -> list[Path]:

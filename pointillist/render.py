@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from pointillist.errors import UsageError
-from pointillist.render_output import output_path, write_render
+from pointillist.render_output import check_preview, output_path, render_outputs, write_render
 
 __all__ = ["RenderSummary", "render_file"]
 
@@ -70,78 +70,113 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         itself, or lies in a folder that does not exist.
     """
     import pointillist
+    from pointillist import signals
     from pointillist.camera_relative import make_camera_relative, offset_text
-    from pointillist.scene import instantiate_scene, parse_scene, scene_info, timed_render
+    from pointillist.channels import channel_layout
+    from pointillist.plan import Output, Plan, scene_inputs
+    from pointillist.scene import check_scene_file, instantiate_scene, parse_scene, scene_info, timed_render
 
     params = dict(params or {})
-    from pointillist.imaging.io import check_output_path
-
+    progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
+                   or checkpoint is not None or resume)
+    tiled = bool(tiles or workers or scheduler or cache)
+    if progressive and tiled:
+        raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
+                         "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
+    scene = check_scene_file(scene)
     out = output_path(str(scene), None if output is None else str(output))
-    if not out.parent.is_dir():
-        raise UsageError(f"--output: folder {out.parent} does not exist")
-    try:  # before the render: an output that cannot be written fails first
-        check_output_path(out, [scene], name="--output")
-    except ValueError as error:
-        raise UsageError(str(error)) from None
+    default = output is None
+    # The plan, before any work: every output is checked writable now, and (once the scene is
+    # parsed) none of them may be a file the scene reads.
+    outputs = render_outputs(out, png=png, default=default)
+    if progressive:
+        from pointillist.progressive import checkpoint_path, progress_paths
+
+        csv_path, plot_path = progress_paths(out)
+        outputs.append(Output(csv_path, "progress log", make_parent=default))
+        if png:
+            outputs.append(Output(plot_path, "progress plot", make_parent=default))
+        if checkpoint is not None:
+            outputs.append(Output(checkpoint_path(out), "--checkpoint", make_parent=default))
+    if cache:
+        outputs.append(Output(Path(cache), "--cache", folder=True))
+    plan = Plan(inputs=[scene], outputs=outputs)
+    plan.check()
     pointillist.setup()
     start = time.perf_counter()
     # load_scene's steps, keeping the parsed scene: the header records the offset removed
     parsed = make_camera_relative(parse_scene(scene, params))
+    plan.add(inputs=scene_inputs(parsed))
     loaded = instantiate_scene(parsed)
     load_s = time.perf_counter() - start
     info = dict(scene_info(loaded), origin_offset=offset_text(parsed.recentring))
+    layout = channel_layout(loaded)
+    check_preview(layout, png)
+    plan.add(outputs=[o for o in render_outputs(out, png=png, layout=layout, default=default)
+                      if o.path not in {p.path for p in plan.outputs}])
     png_path = out.with_suffix(".png") if png else None
-    progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
-                   or checkpoint is not None or resume)
-    tiled = bool(tiles or workers or scheduler or cache)
-    if progressive:
-        if tiled:
-            raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
-                             "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
-        summary = _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png, load_s=load_s,
-                                      time_budget=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp,
-                                      variance_layer=variance_layer, checkpoint=checkpoint, resume=resume)
-        summary.recentring = parsed.recentring
-        return summary
-    spp = spp or info["spp"]
-    if not tiled:
-        image, timing = timed_render(loaded, spp=spp, seed=seed)
-        write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png)
+    with plan.writing():
+        if progressive:
+            summary = _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png,
+                                          load_s=load_s, time_budget=time_budget, target_error=target_error, spp=spp,
+                                          pass_spp=pass_spp, variance_layer=variance_layer, checkpoint=checkpoint,
+                                          resume=resume, plan=plan, layout=layout)
+            summary.recentring = parsed.recentring
+            return summary
+        spp = spp or info["spp"]
+        if not tiled:
+            image, timing = timed_render(loaded, spp=spp, seed=seed)
+            signals.check()  # stopped during the render: nothing is written
+            write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png,
+                         layout=layout, inputs=plan.inputs)
+            return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
+                                 recentring=parsed.recentring)
+
+        from pointillist.distributed import open_client
+        from pointillist.plan import inputs_digest
+        from pointillist.tiles import render_tiled
+
+        tiles = tiles or (1, 1)
+        with open_client(workers, scheduler) as client:
+            where = ("in process" if client is None else f"on {len(client.scheduler_info(n_workers=-1)['workers'])} "
+                     f"worker(s) at {client.scheduler.address}")
+            result = render_tiled(scene, params, tiles=tiles, spp=spp, seed=seed, client=client, cache=cache,
+                                  progress=True, inputs_sha256=inputs_digest(plan.inputs, params))
+        signals.check()
+        timing = result.timing()
+        meta = dict(info, spp=spp, seed=seed, tile_grid=f"{tiles[0]}x{tiles[1]}",
+                    tile_seeds=f"(seed*{len(result.tiles)}+tile) mod 2^32")
+        write_render(out, result.image, loaded, str(scene), meta, timing, png=png, layout=layout, inputs=plan.inputs)
         return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
-                             recentring=parsed.recentring)
-
-    from pointillist.distributed import open_client
-    from pointillist.tiles import render_tiled
-
-    tiles = tiles or (1, 1)
-    with open_client(workers, scheduler) as client:
-        where = ("in process" if client is None else
-                 f"on {len(client.scheduler_info(n_workers=-1)['workers'])} worker(s) at {client.scheduler.address}")
-        result = render_tiled(scene, params, tiles=tiles, spp=spp, seed=seed, client=client, cache=cache,
-                              progress=True)
-    timing = result.timing()
-    meta = dict(info, spp=spp, seed=seed, tile_grid=f"{tiles[0]}x{tiles[1]}",
-                tile_seeds=f"(seed*{len(result.tiles)}+tile) mod 2^32")
-    write_render(out, result.image, loaded, str(scene), meta, timing, png=png)
-    return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
-                         tiles=tiles, where=where, cached=result.cached, recentring=parsed.recentring)
+                             tiles=tiles, where=where, cached=result.cached, recentring=parsed.recentring)
 
 
 def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,
                         png: bool, load_s: float, time_budget, target_error, spp, pass_spp, variance_layer: bool,
-                        checkpoint, resume: bool) -> RenderSummary:
-    """The progressive branch of :func:`render_file`: passes, EXR with their metadata, progress log."""
+                        checkpoint, resume: bool, plan, layout) -> RenderSummary:
+    """The progressive branch of :func:`render_file`: passes, EXR with their metadata, progress log.
+
+    A second signal during the passes abandons the pass in flight: the EXR and the progress log
+    of the passes done are written then (no PNG: the process ends at once).
+    """
+    from pointillist import signals
     from pointillist.progressive import Budget, checkpoint_path, render_progressive, write_progress
 
     if time_budget is None and target_error is None:
         spp = spp or info["spp"]
     budget = Budget(seconds=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp)
+
+    def write(result, *, png: bool) -> None:
+        layers = {"variance": result.variance} if variance_layer else None
+        write_render(out, result.image, loaded, str(scene), dict(info, **result.metadata), result.timing, png=png,
+                     extra_layers=layers, layout=layout, inputs=plan.inputs)
+        write_progress(out, result.history, png=png, inputs=plan.inputs)
+
     result = render_progressive(loaded, scene, budget, params=params, seed=seed, checkpoint_seconds=checkpoint,
                                 checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,
-                                resume=resume, progress=True)
-    layers = {"variance": result.variance} if variance_layer else None
-    write_render(out, result.image, loaded, str(scene), dict(info, **result.metadata), result.timing, png=png,
-                 extra_layers=layers)
-    write_progress(out, result.history, png=png, inputs=[scene])
+                                resume=resume, progress=True, inputs=plan.inputs, layout=layout,
+                                abandon=lambda partial: write(partial, png=False))
+    with signals.on_abandon(lambda: write(result, png=False)):  # a second signal while writing: the EXR still is
+        write(result, png=png)
     return RenderSummary(exr=out, png=png_path, info=info, spp=result.stats.spp, timing=result.timing,
                          load_seconds=load_s, progressive=result)

@@ -10,7 +10,8 @@ from pathlib import Path
 
 from pointillist.errors import UsageError
 
-__all__ = ["SAMPLE_COUNT_LAYER", "output_path", "write_render", "write_sample_heatmap"]
+__all__ = ["SAMPLE_COUNT_LAYER", "output_path", "render_outputs", "check_preview", "write_render",
+           "write_sample_heatmap"]
 
 
 #: The EXR layer of a per-pixel sample count (written by the ``adaptive`` integrator).
@@ -19,42 +20,66 @@ SAMPLE_COUNT_LAYER = "sample_count"
 
 
 def output_path(scene: str, output: str | None) -> Path:
-    """The EXR path to write: ``output`` or ``out/<scene stem>.exr``; checks it is not the scene."""
+    """The EXR path to write: ``output`` or ``out/<scene stem>.exr`` (the folder ``out`` is made only
+    when the work starts: :meth:`pointillist.plan.Plan.writing`)."""
     path = Path(output) if output else Path("out") / (Path(scene).stem + ".exr")
     if path.suffix.lower() != ".exr":
         raise UsageError(f"--output: expected a .exr file name, got {path}")
-    if not output:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists() and Path(scene).exists() and path.resolve() == Path(scene).resolve():
-        raise UsageError(f"--output: refusing to overwrite the input {path}")
     return path
 
 
+def render_outputs(out: Path, *, png: bool, layout=None, default: bool = False) -> list:
+    """The files :func:`write_render` writes for ``out``, as :class:`pointillist.plan.Output`:
+    the EXR, and with ``png`` the preview (and the sample-count heat map when ``layout`` has a
+    ``sample_count`` layer). ``default``: ``out`` is the default name, whose folder may be made."""
+    from pointillist.plan import Output
+
+    outputs = [Output(out, "--output", make_parent=default)]
+    if png:
+        outputs.append(Output(out.with_suffix(".png"), "--png (preview)", make_parent=default))
+        if layout is not None and SAMPLE_COUNT_LAYER in layout.layer_names():
+            outputs.append(Output(out.with_suffix(f".{SAMPLE_COUNT_LAYER}.png"), "--png (sample-count heat map)",
+                                  make_parent=default))
+    return outputs
+
+
+def check_preview(layout, png: bool) -> None:
+    """UsageError when a PNG preview is asked of a render without colour."""
+    if png and not layout.colour:
+        raise UsageError("--png: the render has no colour channels (Mitsuba's aov integrator without a nested "
+                         f"integrator renders only AOVs: {', '.join(layout.names)}); drop --png")
+
 
 def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *, png: bool,
-                 extra_layers: dict | None = None) -> None:
+                 extra_layers: dict | None = None, layout=None, inputs=()) -> None:
     """Write a render's EXR (extra channels as layers, metadata in the header) and PNG preview.
 
-    ``extra_layers`` adds (H, W) EXR layers by name (e.g. a progressive render's ``variance``).
+    The image is split by the scene's :class:`pointillist.channels.ChannelLayout` (``layout``,
+    read from ``scene`` when not given): colour (and alpha) are the EXR's ``Y``/``RGB``/``RGBA``
+    channels, every AOV a layer of its own name; a render without colour (Mitsuba's ``aov``
+    integrator alone) is an EXR of layers only. ``extra_layers`` adds (H, W) layers by name
+    (e.g. a progressive render's ``variance``). ``inputs``: files no write may replace (the
+    scene file is always one).
     """
-    import numpy as np
-
+    from pointillist.channels import channel_layout
     from pointillist.imaging.io import write_exr, write_png
 
-    pixels = np.asarray(image)
-    names = list(scene.integrator().aov_names())
-    base = pixels.shape[2] - len(names)
-    layers = {name: pixels[..., base + i] for i, name in enumerate(names)}
+    layout = layout or channel_layout(scene)
+    parts = layout.split(image)
+    colour = layout.with_colour_alpha(image)
+    layers = dict(parts.layers)
     layers.update(extra_layers or {})
     metadata = dict(info, scene=str(scene_path), render_seconds=timing.total,
                     compile_seconds=timing.compile, execute_seconds=timing.execute,
                     trace_seconds=timing.trace)
-    write_exr(out, pixels[..., :base], metadata, layers=layers, inputs=[scene_path])
+    protected = [scene_path, *inputs]
+    write_exr(out, colour, metadata, layers=layers, inputs=protected)
     if png:
-        write_png(out.with_suffix(".png"), pixels[..., :min(base, 3)], inputs=[scene_path])
+        check_preview(layout, png)
+        write_png(out.with_suffix(".png"), parts.colour, inputs=protected)
         if SAMPLE_COUNT_LAYER in layers:
             write_sample_heatmap(out.with_suffix(f".{SAMPLE_COUNT_LAYER}.png"), layers[SAMPLE_COUNT_LAYER],
-                                 inputs=[scene_path])
+                                 inputs=protected)
 
 
 

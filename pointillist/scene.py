@@ -10,9 +10,11 @@ from pathlib import Path
 from typing import Any
 
 from pointillist.camera_relative import make_camera_relative
+from pointillist import signals
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
+           "resolving_from",
            "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info",
            "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
 
@@ -80,7 +82,7 @@ class ParsedScene:
 
 
 @contextmanager
-def _resolving_from(folder: Path):
+def resolving_from(folder: Path):
     """Mitsuba's file resolver with ``folder`` first, as ``mi.load_file`` sets it up; restored after."""
     import mitsuba as mi
 
@@ -112,7 +114,7 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
     # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
     config.parallel = False
     try:
-        with _resolving_from(path.resolve().parent):
+        with resolving_from(path.resolve().parent):
             if text is None:
                 state = mi.parser.parse_file(config, str(path), **params)
             else:
@@ -120,6 +122,7 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
             mi.parser.transform_all(config, state)
     except RuntimeError as error:
         raise UsageError(f"scene {path}{what}: {mitsuba_message(error)}") from None
+    signals.check()
     return ParsedScene(path=path, params=params, state=state, config=config)
 
 
@@ -132,13 +135,14 @@ def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
     import mitsuba as mi
 
     try:
-        with _resolving_from(parsed.path.resolve().parent):
+        with resolving_from(parsed.path.resolve().parent):
             scene = mi.parser.instantiate(parsed.config, parsed.state)
     except RuntimeError as error:
         raise UsageError(f"scene {parsed.path}{what}: {mitsuba_message(error)}") from None
     if not isinstance(scene, mi.Scene):
         raise UsageError(f"scene {parsed.path}: expected a <scene> root element, got {type(scene).__name__}")
     check_sensor(scene, parsed.path)
+    signals.check()
     return scene
 
 
@@ -232,6 +236,7 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
     sensor_obj = scene.sensors()[sensor]
     width, height = (int(v) for v in sensor_obj.film().crop_size())
     check_sample_count(width, height, int(spp) if spp else int(sensor_obj.sampler().sample_count()))
+    signals.check()  # a safe point: nothing rendered yet
 
     dr.sync_thread()
     flag = dr.flag(dr.JitFlag.KernelHistory)

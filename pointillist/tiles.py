@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.distributed import DEFAULT_RETRIES, ResultCache, file_digest, run_tasks, setup_process
+from pointillist.distributed import DEFAULT_RETRIES, ResultCache, run_tasks, setup_process
 from pointillist.errors import UsageError
 
 __all__ = [
@@ -161,6 +161,9 @@ class RenderTask:
     crop : tuple of 4 ints or None
         ``(offset_x, offset_y, width, height)`` film crop window in film
         pixels; None renders the scene's own window.
+    inputs_sha256 : str
+        :func:`pointillist.plan.inputs_digest` of the scene's inputs (the scene file and every
+        file it reads) and params; '' computes it when needed (:meth:`cache_token`).
     """
 
     scene: str
@@ -169,6 +172,7 @@ class RenderTask:
     seed: int = 0
     sensor: int = 0
     crop: tuple[int, int, int, int] | None = None
+    inputs_sha256: str = ""
 
     def __post_init__(self):
         params = self.params
@@ -190,9 +194,14 @@ class RenderTask:
             object.__setattr__(self, "crop", crop)
 
     def cache_token(self) -> dict[str, Any]:
-        """What identifies the result: the fields plus the scene file's SHA-256."""
+        """What identifies the result: the fields, with the SHA-256 of the scene's inputs (a changed
+        texture, mesh or included file is another task). Parses the scene when ``inputs_sha256``
+        is empty (Mitsuba set up: :func:`pointillist.setup`)."""
         token = dataclasses.asdict(self)
-        token["scene_sha256"] = file_digest(self.scene)
+        if not self.inputs_sha256:
+            from pointillist.plan import scene_digest
+
+            token["inputs_sha256"] = scene_digest(self.scene, dict(self.params))
         return token
 
 @dataclasses.dataclass
@@ -225,7 +234,7 @@ def _scene_for(task: RenderTask):
         stamp = path.stat().st_mtime_ns
     except OSError:
         raise UsageError(f"scene: no such file: {path}") from None
-    key = (str(path.resolve()), stamp, task.params)
+    key = (str(path.resolve()), stamp, task.params, task.inputs_sha256)
     entry = _SCENES.get(key)
     load_s = 0.0
     if entry is None:
@@ -347,12 +356,14 @@ def assemble_tiles(tiles: Sequence[Tile], images: Sequence[np.ndarray], *, x: in
 def render_tiled(scene: str | os.PathLike, params: dict[str, str] | None = None, *, tiles: tuple[int, int] = (1, 1),
                  spp: int | None = None, seed: int = 0, sensor: int = 0, client=None,
                  cache: ResultCache | str | os.PathLike | None = None, retries: int = DEFAULT_RETRIES,
-                 progress: bool = True) -> TiledRender:
+                 progress: bool = True, inputs_sha256: str = "") -> TiledRender:
     """Render a scene as ``rows x cols`` crop-window tiles (tasks) and assemble the image.
 
     Tile ``i`` renders with seed :func:`tile_seed` ``(seed, i, rows * cols)``.
     The tiles cover the scene's own crop window (the whole film unless the
-    scene sets one); the image has that window's size.
+    scene sets one); the image has that window's size. ``inputs_sha256``: the digest of
+    the scene's inputs (:func:`pointillist.plan.inputs_digest`; computed when empty), which
+    keys the cache and each worker's loaded scene.
 
     Examples
     --------
@@ -364,8 +375,12 @@ def render_tiled(scene: str | os.PathLike, params: dict[str, str] | None = None,
     """
     rows, cols = tiles
     path = Path(scene).resolve()
-    probe = RenderTask(str(path), params or {}, spp, seed, sensor)
     setup_process()
+    if not inputs_sha256:
+        from pointillist.plan import scene_digest
+
+        inputs_sha256 = scene_digest(path, params)
+    probe = RenderTask(str(path), params or {}, spp, seed, sensor, inputs_sha256=inputs_sha256)
     _, _, window, _, _ = _scene_for(probe)
     ox, oy, width, height = window
     grid = tile_grid(width, height, rows, cols, x=ox, y=oy)

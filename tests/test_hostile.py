@@ -91,8 +91,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("compare-reference-spp-zero", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--reference-spp", "0"], ERROR),
     # Regression (defect 1): a black scene's own reference and an all-NaN or all-zero reference aborted.
     ("compare-black-scene", ["compare", "{d}/dark.xml", "--out", "{o}/c", *CMP], OK),
+    # Issue 26 (defect 7): a reference with NaN or +-inf made every error NaN, or failed after the sweep: refused.
     ("compare-nan-reference", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--spp", "1", "--samplers", "grid",
-                               "--no-progress", "--reference", "{d}/nan8.exr"], OK),
+                               "--no-progress", "--reference", "{d}/nan8.exr"], ERROR),
+    ("compare-inf-reference", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--spp", "1", "--samplers", "grid",
+                               "--no-progress", "--reference", "{d}/inf8.exr"], ERROR),
     ("compare-zero-reference", ["compare", "{scenes}/default.xml", "-D", "res=8", "--out", "{o}/c", "--spp", "1",
                                 "--samplers", "grid", "--no-progress", "--reference", "{d}/zero8.exr"], OK),
     # ------------------------------------------------------------------ post
@@ -432,13 +435,14 @@ def test_hostile_inputs_untouched(hostile):
 
 
 def test_hostile_flip_and_filter(hostile):
-    """A black scene (its own reference), an all-NaN and an all-zero reference: every row gets a
-    finite FLIP (defect 1: these aborted with exit 134), and the output and results.md say which
-    film filter the scene uses (only a box filter is the course's plain average)."""
+    """A black scene (its own reference) and an all-zero reference: every row gets a finite FLIP
+    (defect 1: these aborted with exit 134; an all-NaN one is refused since issue 26), and the
+    output and results.md say which film filter the scene uses (only a box filter is the course's
+    plain average)."""
     import csv
 
     results, folders, *_ = hostile
-    for name in ("compare-black-scene", "compare-nan-reference", "compare-zero-reference"):
+    for name in ("compare-black-scene", "compare-zero-reference"):
         with open(folders[name] / "c" / "results.csv") as handle:
             rows = list(csv.DictReader(handle))
         assert rows and all(np.isfinite(float(row["flip"])) for row in rows), rows
@@ -477,34 +481,47 @@ def test_hostile_rgba_alpha_is_said(hostile):
 _SIGNAL_DRIVER = textwrap.dedent("""
     import os, signal, sys, time
     from PIL import Image
-    import pointillist.cli as cli
+    from pointillist.console import main
 
-    def save(self, fp, *args, **kwargs):  # a write that is half done when the signal comes
+    SIGNAL, COUNT = getattr(signal, sys.argv[1]), int(sys.argv[2])
+
+    def save(self, fp, *args, **kwargs):  # the signals land in the middle of the write
         with open(fp, "w") as handle:
-            handle.write("partial")
-        os.kill(os.getpid(), getattr(signal, sys.argv[1]))
-        time.sleep(30)
+            handle.write("first half, ")
+            for _ in range(COUNT):
+                os.kill(os.getpid(), SIGNAL)
+                time.sleep(0.3)
+            handle.write("second half")
 
     Image.Image.save = save
-    sys.exit(cli.main(sys.argv[2:]))
+    sys.argv = ["pointillist"] + sys.argv[3:]
+    main()
 """)
 
 
 @pytest.mark.parametrize("name, status, word", [("SIGTERM", 143, "terminated"), ("SIGINT", 130, "interrupted")])
-def test_signal_during_write_leaves_no_file(tmp_path, name, status, word):
-    """Defect 7: SIGTERM (like Ctrl-C) during a write exits 143 (130) with one line, and the
-    temporary file beside the output is gone."""
+@pytest.mark.parametrize("count", [1, 2], ids=["one-signal", "two-signals"])
+def test_signal_during_write_leaves_no_file(tmp_path, name, status, word, count):
+    """Defect 7: SIGTERM (like Ctrl-C) during a write exits 143 (130) with one line and no
+    temporary file. Issue 26: a signal is only recorded where it lands, so the write in flight
+    completes (the file is whole, never cut) and the command stops after it; a second signal ends
+    the process at once: the temporary file is removed and nothing is written."""
     from PIL import Image
 
     source = tmp_path / "in.png"
     Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(source)
     out = tmp_path / "out"
     out.mkdir()
-    done = subprocess.run([sys.executable, "-c", _SIGNAL_DRIVER, name, "post", str(source), "-o",
+    done = subprocess.run([sys.executable, "-c", _SIGNAL_DRIVER, name, str(count), "post", str(source), "-o",
                            str(out / "x.png"), "--steps", "gamma:2"], capture_output=True, text=True, timeout=120)
     assert done.returncode == status, done.stderr
-    assert done.stderr.splitlines() == [f"pointillist post: {word}" + (" (SIGTERM)" if status == 143 else "")]
-    assert list(out.iterdir()) == []
+    line = f"pointillist post: {word}" + (" (SIGTERM)" if status == 143 else "")
+    if count == 1:
+        assert done.stderr.splitlines() == [line]
+        assert [(p.name, p.read_text()) for p in out.iterdir()] == [("x.png", "first half, second half")]
+    else:
+        assert done.stderr.splitlines() == [line + "; stopped at once (second signal)"]
+        assert list(out.iterdir()) == []
 
 
 def test_flip_never_aborts_the_process():

@@ -335,15 +335,16 @@ def test_cli_checkpoint_then_resume_equals_one_uninterrupted_render(tmp_path, cl
     # another scene file (same name), another seed: exit 2, one line
     scene.write_text(scene.read_text().replace('value="40, 39, 36"', 'value="41, 39, 36"'))
     proc = cli("render", scene, "-o", first, *args, "--spp", "96", "--resume")
-    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "another scene file" in proc.stderr
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "another scene (" in proc.stderr
     shutil.copy(EDGES, scene)
     proc = cli("render", scene, "-o", first, "-D", "res=16", "--seed", "6", "--spp", "96", "--resume")
     assert proc.returncode == 2 and "other settings (seed 5, now 6)" in proc.stderr
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_interrupt_writes_the_passes_done(tmp_path, mi, signum):
-    """Ctrl-C / SIGTERM during a --time 60 render: a valid EXR of what was rendered, interrupted=1.
+@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
+def test_interrupt_writes_the_passes_done(tmp_path, mi, signum, status):
+    """Ctrl-C / SIGTERM during a --time 60 render: a valid EXR of what was rendered, interrupted=1;
+    exit 130 for Ctrl-C and 143 for SIGTERM (issue 26: SIGTERM exited 130), with one line.
 
     Waits (event, not time) for the first checkpoint, i.e. for passes to exist, then signals.
     """
@@ -356,7 +357,9 @@ def test_interrupt_writes_the_passes_done(tmp_path, mi, signum):
         time.sleep(0.05)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)
-    assert proc.returncode == 130, stderr
+    assert proc.returncode == status, stderr
+    word = "interrupted" if status == 130 else "terminated (SIGTERM)"
+    assert stderr.splitlines() == [f"pointillist render: {word}"]
     image, meta, _ = read_exr(out)
     assert meta["interrupted"] == 1 and meta["stopped_by"] == "interrupted" and meta["spp"] >= 1
     assert meta["render_seconds"] < 60 and image.shape == (16, 16, 3) and np.isfinite(image).all()

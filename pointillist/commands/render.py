@@ -8,6 +8,7 @@ are written as extra EXR layers.
 from __future__ import annotations
 
 import argparse
+import sys
 
 from pointillist.commands._types import non_negative_int, positive_float, positive_int
 
@@ -85,7 +86,12 @@ def run(args: argparse.Namespace) -> int:
               f"{stats.spp} spp in {stats.passes} passes, {stats.seconds:.2f} s (JIT compile "
               f"{stats.compile_seconds:.2f} s), estimated relMSE {stats.estimated_relmse:.4g}, stopped by "
               f"{result.stop}" + (f" (resumed from {result.resumed_from} passes)" if result.resumed_from else ""))
-        return 130 if result.interrupted else 0  # interrupted: the passes done are written, but it is not done
+        if result.interrupted:  # the passes done are written, but it is not done: 130 (Ctrl-C) / 143 (SIGTERM)
+            from pointillist import signals
+
+            print(f"pointillist render: {signals.message(result.signum)}", file=sys.stderr)
+            return signals.status(result.signum) if result.signum is not None else 130
+        return 0
     if done.tiles is None:
         print(f"{info['width']}x{info['height']} at {done.spp} spp, integrator {info['integrator']}, "
               f"sampler {info['sampler']}")

@@ -1,0 +1,309 @@
+"""The process's one signal boundary: SIGINT and SIGTERM are recorded where they land, never raised there.
+
+Python's default SIGINT handler raises ``KeyboardInterrupt`` at whatever bytecode runs when the
+signal lands: inside an import, inside a plugin constructor that Mitsuba calls from C++, inside a
+Dr.Jit callback. An exception there leaves a half-imported module, a traceback, or a C++
+``std::terminate``. Under the boundary (:func:`install`, the first thing the ``pointillist``
+console script does) the handlers only record the signal:
+
+* **first signal**: a request to stop. Work stops at the next *safe point*, a place in plain Python
+  where unwinding is clean: :func:`check` raises :class:`KeyboardInterrupt` (SIGINT) or
+  :class:`~pointillist.errors.Terminated` (SIGTERM) there, and the command line turns it into
+  exit status 130 / 143 and one line on stderr. Loops that can keep their work (the passes of a
+  progressive render) ask :func:`received` instead and stop after the step in flight.
+* **second signal**: stop now, even inside a long native call (a render kernel). A watcher thread,
+  woken through :func:`signal.set_wakeup_fd` (so it runs while the main thread is in native
+  code), runs the hooks registered with :func:`on_abandon` (a progressive render writes the passes
+  done), removes the temporary files of writes in flight (:func:`temporary_file`), prints one line and
+  ends the process with 130 / 143.
+
+Outside the boundary (library use, a notebook) nothing changes: :func:`check` does nothing, and
+Python's own handlers stay.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import signal
+import sys
+import threading
+from collections.abc import Callable, Iterator
+
+from pointillist.errors import Terminated
+
+__all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
+           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS",
+           "finish"]
+
+#: The signals the boundary handles.
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+#: Exit status after each signal: 128 + the signal number, as a shell reports it.
+STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+#: How long the hooks of a second signal may run before the process ends anyway (seconds).
+ABANDON_SECONDS = 30.0
+
+
+class _Boundary:
+    """The installed state: handlers, the wake-up pipe, the watcher thread, what was received."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.received: list[int] = []
+        self.hooks: list[Callable[[], None]] = []
+        self.temporary: set[str] = set()
+        self.command = "pointillist"
+        self.read_fd, self.write_fd = os.pipe()
+        for fd in (self.read_fd, self.write_fd):
+            os.set_blocking(fd, False)
+        self.previous_wakeup = signal.set_wakeup_fd(self.write_fd, warn_on_full_buffer=False)
+        self.previous = {signum: signal.signal(signum, _record) for signum in SIGNALS}
+        self.stopping = False
+        self.watcher = threading.Thread(target=self._watch, name="pointillist-signals", daemon=True)
+        self.watcher.start()
+
+    # -- the pipe: every signal lands there as one byte (written by Python's C-level handler)
+    def drain(self) -> None:
+        """Move what the pipe holds into :attr:`received` (call with :attr:`lock` held)."""
+        while True:
+            try:
+                data = os.read(self.read_fd, 512)
+            except BlockingIOError:
+                return
+            if not data:
+                return
+            self.received.extend(b for b in data if b in STATUS)
+
+    def _watch(self) -> None:
+        while not self.stopping:
+            try:
+                select.select([self.read_fd], [], [])
+            except (OSError, ValueError):  # the pipe was closed by uninstall()
+                return
+            with self.lock:
+                if self.stopping:
+                    return
+                self.drain()
+                count = len(self.received)
+            if count >= 2:
+                self.abandon()
+
+    def abandon(self) -> None:
+        """Second signal: run the hooks (bounded in time), remove temporary files, one line, exit."""
+        with self.lock:
+            hooks, first, command = list(self.hooks), self.received[0], self.command
+        runner = threading.Thread(target=_run_hooks, args=(hooks,), daemon=True)
+        runner.start()
+        runner.join(ABANDON_SECONDS)
+        with self.lock:
+            for name in list(self.temporary):
+                with contextlib.suppress(OSError):
+                    os.unlink(name)
+        _print_line(f"{command}: {message(first)}; stopped at once (second signal)")
+        os._exit(STATUS[first])
+
+    def close(self) -> None:
+        self.stopping = True
+        signal.set_wakeup_fd(self.previous_wakeup)
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        with contextlib.suppress(OSError):
+            os.write(self.write_fd, b"\0")  # wakes the watcher, which sees `stopping`
+        self.watcher.join(5)
+        for fd in (self.read_fd, self.write_fd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+_STATE: _Boundary | None = None
+
+
+def _record(signum, frame) -> None:
+    """The Python-level handler: nothing (the C-level handler already wrote the signal into the
+    wake-up pipe; a Python handler must exist for it to do so). Never raises."""
+
+
+def _run_hooks(hooks) -> None:
+    for hook in hooks:
+        try:
+            hook()
+        except BaseException:  # noqa: BLE001 - the process is ending; a failing hook must not stop that
+            pass
+
+
+def _print_line(text: str) -> None:
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+    with contextlib.suppress(Exception):
+        sys.stderr.write(text + "\n")
+        sys.stderr.flush()
+
+
+def install(command: str | None = None) -> bool:
+    """Install the boundary (main thread only); True when this call installed it.
+
+    Idempotent: a second call only updates the command name used in the messages.
+    """
+    global _STATE
+    if _STATE is None:
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        _STATE = _Boundary()
+        installed_now = True
+    else:
+        installed_now = False
+    if command is not None:
+        _STATE.command = command
+    return installed_now
+
+
+def uninstall() -> None:
+    """Restore the handlers the boundary replaced (what was received is forgotten)."""
+    global _STATE
+    if _STATE is not None:
+        state, _STATE = _STATE, None
+        state.close()
+
+
+def installed() -> bool:
+    """Whether the boundary is installed in this process."""
+    return _STATE is not None
+
+
+@contextlib.contextmanager
+def boundary(command: str | None = None) -> Iterator[bool]:
+    """The boundary for a block (installed on entry unless it already was, removed on exit if it
+    was installed here); yields whether it is active (False outside the main thread)."""
+    mine = install(command)
+    try:
+        yield installed()
+    finally:
+        if mine:
+            uninstall()
+
+
+def set_command(command: str) -> None:
+    """Name the command in the line a second signal prints (``pointillist render``)."""
+    if _STATE is not None:
+        _STATE.command = command
+
+
+def received() -> int | None:
+    """The first signal received under the boundary (``signal.SIGINT`` / ``SIGTERM``), or None."""
+    state = _STATE
+    if state is None:
+        return None
+    with state.lock:
+        state.drain()
+        return state.received[0] if state.received else None
+
+
+def check() -> None:
+    """A safe point: raise ``KeyboardInterrupt`` (SIGINT) or ``Terminated`` (SIGTERM) if one was received.
+
+    Does nothing outside the boundary.
+    """
+    signum = received()
+    if signum == signal.SIGTERM:
+        raise Terminated()
+    if signum is not None:
+        raise KeyboardInterrupt()
+
+
+def status(signum: int | None = None) -> int:
+    """The exit status of ``signum`` (default: the first signal received; 130 when none was)."""
+    signum = received() if signum is None else signum
+    return STATUS.get(signum, 130)
+
+
+def message(signum: int) -> str:
+    """What the command line says about ``signum``: ``interrupted`` or ``terminated (SIGTERM)``."""
+    return "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+
+
+@contextlib.contextmanager
+def on_abandon(hook: Callable[[], None]) -> Iterator[None]:
+    """While the block runs, a second signal runs ``hook`` (in another thread) before the process ends.
+
+    The hook may not touch what the main thread is changing; it gets :data:`ABANDON_SECONDS`.
+    """
+    state = _STATE
+    if state is None:
+        yield
+        return
+    with state.lock:
+        state.hooks.append(hook)
+    try:
+        yield
+    finally:
+        with state.lock:
+            with contextlib.suppress(ValueError):
+                state.hooks.remove(hook)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[Callable[[], int | None]]:
+    """For a loop that stops by itself after the step in flight: yields ``requested()``, the first
+    SIGINT/SIGTERM received (or None).
+
+    Under the boundary that is :func:`received`. Outside it (library use: a notebook, a script),
+    in the main thread, the two signals are caught for the block: the first is only recorded; a
+    second raises ``KeyboardInterrupt`` as Python's own Ctrl-C does. The previous handlers come
+    back after the block.
+    """
+    if _STATE is not None or threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    first: list[int] = []
+
+    def handle(signum, frame):
+        if first:
+            raise KeyboardInterrupt(f"signal {signum} again")
+        first.append(signum)
+
+    previous = {signum: signal.signal(signum, handle) for signum in SIGNALS}
+    try:
+        yield lambda: first[0] if first else None
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
+def temporary_file(create: Callable[[], str]) -> str:
+    """Call ``create()`` (which makes a temporary file and returns its name) and register the name,
+    as one step that a second signal cannot cut in two: the file it ends the process in the
+    middle of is removed (:func:`forget_file` when it is renamed or removed)."""
+    state = _STATE
+    if state is None:
+        return create()
+    with state.lock:
+        name = create()
+        state.temporary.add(str(name))
+    return name
+
+
+def forget_file(name: str | os.PathLike) -> None:
+    """The temporary file ``name`` is gone (renamed over its target, or removed)."""
+    state = _STATE
+    if state is not None:
+        with state.lock:
+            state.temporary.discard(str(name))
+
+
+def finish(exit_status: int) -> int:
+    """The final exit status: a signal received before the process ends makes a success 130 / 143.
+
+    Called last by the console script, with the signals blocked in the calling thread so that no
+    signal lands between this decision and the exit; prints the one line when it changes the
+    status (an error line already printed stays the only one).
+    """
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    signum = received()
+    if signum is not None and exit_status == 0:
+        _print_line(f"{_STATE.command if _STATE is not None else 'pointillist'}: {message(signum)}")
+        return STATUS[signum]
+    return exit_status
