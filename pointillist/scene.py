@@ -9,8 +9,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from pointillist.camera_relative import make_camera_relative
 from pointillist import signals
+from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
