@@ -11,9 +11,9 @@ from typing import Any
 
 from pointillist.errors import UsageError
 
-__all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
-           "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info",
-           "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
+__all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
+           "check_scene_file", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render",
+           "scene_info", "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -135,7 +135,18 @@ def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
     if not isinstance(scene, mi.Scene):
         raise UsageError(f"scene {parsed.path}: expected a <scene> root element, got {type(scene).__name__}")
     check_sensor(scene, parsed.path)
+    attach_films(scene)
     return scene
+
+
+def attach_films(scene) -> None:
+    """Give each sensor's sampler that lays samples out over the film (``zsobol``: its
+    ``attach_film`` method) the sensor's film: a Mitsuba sampler is built before, and apart
+    from, the film whose pixels it samples."""
+    for sensor in scene.sensors():
+        attach = getattr(sensor.sampler(), "attach_film", None)
+        if attach is not None:
+            attach(sensor.film())
 
 
 def load_scene(path: str | Path, params: dict[str, str] | None = None):
