@@ -7,8 +7,9 @@ renders with :func:`pointillist.scene.timed_render`, writes ``renders/<task>.exr
 and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose EXR
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
-(:func:`pointillist.imaging.metrics.image_errors`), and :func:`pointillist.compare_report.write_report` writes
-``results.csv``, ``results.md`` and the two log-log plots, and
+(:func:`pointillist.imaging.metrics.image_errors`, and the power spectrum of each error image), and
+:func:`pointillist.compare_report.write_report` writes ``results.csv``, ``results.md``, the two log-log
+plots and the error spectra, and
 :func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
 maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
 (:func:`prerender_sweep`) every missing render is a task; the scoring pass that
@@ -103,6 +104,7 @@ class RenderRecord:
     rmse: float = math.nan
     relmse: float = math.nan
     flip: float = math.nan
+    lowfreq: float = math.nan
 
     @property
     def mse(self) -> float:
@@ -230,13 +232,16 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
               maps: dict[str, dict[str, np.ndarray]] | None = None,
+              spectra: dict[str, Any] | None = None,
               render: Callable[..., RenderRecord] = render_one) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
 
     With ``progress``, a progress bar draws on a terminal (standard error a TTY);
     otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
     of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
-    seed-0 render (by ``record.exr``, :func:`pointillist.imaging.metrics.error_maps`) for the report page.
+    seed-0 render (by ``record.exr``, :func:`pointillist.imaging.metrics.error_maps`) for the report page;
+    a ``spectra`` dict the radially averaged power spectrum of every render's luminance error
+    (by ``record.exr``, :func:`pointillist.imaging.metrics.error_spectrum`) for the spectrum plot.
     """
     import sys
 
@@ -244,7 +249,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
 
     from pointillist.compare_report import format_time
     from pointillist.imaging.io import read_exr
-    from pointillist.imaging.metrics import image_errors
+    from pointillist.imaging.metrics import error_spectrum, image_errors
 
     key = scene_key(scene_path, params)
     ref_image = read_exr(reference).image
@@ -264,6 +269,8 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
         record.__dict__.update(image_errors(image, ref_image, maps=kept))
         if kept is not None:
             maps[record.exr] = kept
+        if spectra is not None:
+            spectra[record.exr] = error_spectrum(image, ref_image)
     return records
 
 
@@ -405,10 +412,12 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
             notes.append(note)
             log(note)
     maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
+    spectra: dict[str, Any] = {}
     records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference, progress=progress,
-                        log=log, maps=maps)
+                        log=log, maps=maps, spectra=spectra)
     title = f"Sampler comparison: {scene.name}"
-    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
+    paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes,
+                         spectra=spectra)
     if report:
         from pointillist.compare_html import write_html_report
 

@@ -112,6 +112,13 @@ def check_page(result: dict, lines: list[str], data: dict) -> None:
     # a click on a plot point shows that very render
     assert result["click"]["mode"] == "time" and result["click"]["shown"]
     assert set(result["click"]["shown"]) == {result["click"]["point"]}
+    # the error spectrum beside the maps: one curve per render on show, every positive power of its spectrum drawn
+    assert [c["render"] for c in result["spectrum"]] == result["spectrum_columns"]
+    for curve in result["spectrum"]:
+        powers = data["renders"][curve["render"]]["spectrum"]
+        positive = [p for p, f in zip(powers, data["spectrum"]["frequency"]) if p is not None and p > 0 and f > 0]
+        assert curve["points"] == len(positive) > 0
+    assert result["click"]["point"] in result["click"]["spectrum"]  # the clicked render's spectrum is on show
     assert result["plots"] == [{"axis": "time", "points": len(data["points"])},
                                {"axis": "spp", "points": len(data["points"])}]
 
