@@ -230,14 +230,21 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
     Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
     time of every JIT kernel launched by this render). Raises UsageError before
     rendering for a film without pixels or more than :data:`MAX_SAMPLES` samples
-    (:func:`check_sample_count`).
+    (:func:`check_sample_count`), or what the sampler's ``check_render(spp)`` refuses.
     """
     import drjit as dr
     import mitsuba as mi
 
     sensor_obj = scene.sensors()[sensor]
     width, height = (int(v) for v in sensor_obj.film().crop_size())
-    check_sample_count(width, height, int(spp) if spp else int(sensor_obj.sampler().sample_count()))
+    count = int(spp) if spp else int(sensor_obj.sampler().sample_count())
+    check_sample_count(width, height, count)
+    check = getattr(sensor_obj.sampler(), "check_render", None)  # a sampler's own limits (zsobol's Morton index)
+    if check is not None:
+        try:
+            check(count)
+        except ValueError as error:
+            raise UsageError(str(error)) from None
 
     dr.sync_thread()
     flag = dr.flag(dr.JitFlag.KernelHistory)

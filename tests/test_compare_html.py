@@ -289,6 +289,15 @@ def test_html_report_holds_the_renders_maps_and_counts_subsampled(tmp_path):
         np.testing.assert_allclose(half(entry["rgb"]).reshape(3, 4, 3), image[1::2, 1::2], rtol=1e-3, atol=1e-4)
         np.testing.assert_allclose(half(entry["relmse_map"]).reshape(3, 4), maps["relmse"][1::2, 1::2], rtol=2e-3)
         np.testing.assert_allclose(half(entry["flip_map"]).reshape(3, 4), maps["flip"][1::2, 1::2], atol=1e-3)
+    # the error spectrum of each render: the radial power spectrum of its full-size luminance error (4 digits)
+    from pointillist.imaging.metrics import error_spectrum
+
+    spectrum = error_spectrum(images[("jitter", 4.0)], ref.astype(np.float32))
+    assert data["spectrum"]["frequency"] == spectrum.frequency.tolist() == [0, 1 / 9, 2 / 9, 3 / 9, 4 / 9]
+    assert data["spectrum"]["cutoff"] == 0.125 and data["spectrum"]["nyquist"] == 0.5
+    np.testing.assert_allclose(by_key[("jitter", 4.0)]["spectrum"], spectrum.power, rtol=1e-3)
+    assert by_key[("jitter", 4.0)]["lowfreq"] == pytest.approx(records[1].lowfreq)
+    assert [p["lowfreq"] for p in data["points"]] == pytest.approx([r.lowfreq for r in records])
     # maps passed in (the sweep's own, computed while scoring) are used as they are
     given = {records[0].exr: {"relmse": np.full((7, 9), 0.25, np.float32), "flip": np.full((7, 9), 0.5, np.float32)}}
     used = page_data(write_html_report(records, tmp_path, scene="s.xml", reference=reference, maps=given).path)

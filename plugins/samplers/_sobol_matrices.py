@@ -102,7 +102,7 @@ def sobol_matrices() -> np.ndarray:
     --------
     >>> m = sobol_matrices()
     >>> m.shape, hex(m[0, 0]), hex(m[1, 1]), hex(m[2, 1])
-    ((256, 32), '0x80000000', '0xc0000000', '0x40000000')
+    ((256, 32), '0x80000000', '0xc0000000', '0xc0000000')
     """
     with np.load(SHIPPED_MATRICES) as data:
         matrices = data["matrices"].astype(np.uint32)

@@ -9,11 +9,11 @@ import drjit as dr
 import mitsuba as mi
 
 from pointillist.plugins.samplers._base import GOLDEN_GAMMA, fmix32
-from pointillist.plugins.samplers._sobol import TAG_X, TAG_Y, SobolBase, morton2, packed_permutations, \
-    sobol_coordinate, zsobol_index
+from pointillist.plugins.samplers._sobol import TAG_X, TAG_Y, SobolBase, bits_for, morton2, \
+    packed_permutations, sobol_coordinate, zsobol_index
 from pointillist.plugins.samplers._sobol_matrices import sobol_matrices
 
-__all__ = ["ZSobolSampler", "MORTON_BITS", "film_layout"]
+__all__ = ["ZSobolSampler", "MORTON_BITS", "film_layout", "morton_levels"]
 
 #: Bits of the Morton index ``morton2(x, y) << log2(spp) | sample`` (a ``UInt32``).
 MORTON_BITS = 32
@@ -33,15 +33,40 @@ def film_layout(film, pixels: int) -> tuple[int, int, int, int]:
     ((16, 0, 0, 16), (4, 0, 0, 4))
     """
     if film is not None:
-        border = int(film.rfilter().border_size()) if film.sample_border() else 0
+        border = _border(film)
         width, height = (int(v) + 2 * border for v in film.crop_size())
         if width * height == pixels:
             x0, y0 = (int(v) for v in film.crop_offset())
-            return width, x0, y0, max(int(v) + 2 * border for v in film.size())
+            return width, x0, y0, _extent(film)
     side = math.isqrt(max(pixels, 1))
     if side * side != pixels:
-        side = 1 << (side - 1).bit_length() if side > 1 else 2
+        side = 1 << side.bit_length()  # the power of two above the square root
     return side, 0, 0, max(side, -(-pixels // side))
+
+
+def _border(film) -> int:
+    """Pixels sampled beyond each edge of ``film`` (its filter's border when it samples one)."""
+    return int(film.rfilter().border_size()) if film.sample_border() else 0
+
+
+def _extent(film) -> int:
+    """The larger side of the whole sampled film (border included)."""
+    return max(int(v) for v in film.size()) + 2 * _border(film)
+
+
+def morton_levels(extent: int, log2_spp: int) -> int:
+    """Quadtree levels over a film of larger side ``extent``; ValueError when the Morton index of
+    ``2^log2_spp`` samples per pixel needs more than :data:`MORTON_BITS` bits.
+
+    >>> morton_levels(256, 4), morton_levels(1, 0)
+    (8, 0)
+    """
+    levels = max(extent - 1, 0).bit_length()
+    if 2 * levels + log2_spp > MORTON_BITS:
+        raise ValueError(f"zsobol sampler: a film of side {extent} (rounded up to {1 << levels}) at "
+                         f"{1 << log2_spp} spp needs {2 * levels + log2_spp}-bit Morton indices; at most "
+                         f"{MORTON_BITS} (e.g. 4096 x 4096 at 256 spp)")
+    return levels
 
 
 class ZSobolSampler(SobolBase):
@@ -121,6 +146,13 @@ class ZSobolSampler(SobolBase):
         """Lay the pixels out as on ``film`` (:func:`film_layout`); ``pointillist.scene`` calls this."""
         self._film = (film,) if film is not None else ()
 
+    def check_render(self, spp: int) -> None:
+        """ValueError, before any work, when a render of ``spp`` samples per pixel on the attached film
+        would need Morton indices longer than :data:`MORTON_BITS` (``pointillist.scene.timed_render``
+        asks; inside ``mi.render`` the same error would come wrapped in Mitsuba's)."""
+        if self._film:
+            morton_levels(_extent(self._film[0]), bits_for(spp))
+
     def _copy_config(self, other: "ZSobolSampler") -> None:
         other._film = self._film
 
@@ -134,11 +166,7 @@ class ZSobolSampler(SobolBase):
             warnings.warn(f"zsobol sampler: the film's width is unknown (load the scene with pointillist); "
                           f"laying its {pixels} pixels out in rows of {width}: the error is no longer blue noise",
                           RuntimeWarning, stacklevel=2)
-        levels = max(extent - 1, 0).bit_length()  # quadtree levels over the film
-        if 2 * levels + self.log2_spp > MORTON_BITS:
-            raise ValueError(f"zsobol sampler: a film of side {extent} (rounded up to {1 << levels}) at "
-                             f"{1 << self.log2_spp} spp needs {2 * levels + self.log2_spp}-bit Morton indices; "
-                             f"at most {MORTON_BITS} (e.g. 4096 x 4096 at 256 spp)")
+        levels = morton_levels(extent, self.log2_spp)
         width_opaque = dr.opaque(mi.UInt32, width)
         row = pixel // width_opaque
         x = pixel - row * width_opaque + dr.opaque(mi.UInt32, x0)
