@@ -75,6 +75,22 @@ def test_matrices_are_joe_kuo_and_agree_with_scipy():
         joe_kuo_matrices(np.array([1, 3]), np.array([[1], [2]]), 2)
 
 
+def test_second_dimension_is_the_pascal_transform(mi):
+    """zsobol computes Sobol' dimension 1 as brev(pascal_transform(i)) (Pascal's triangle mod 2): the
+    shipped matrix's points for every 16-bit index; the argument is left as it was (an in-place XOR
+    once turned zsobol's x into its y)."""
+    from pointillist.plugins.samplers._sobol import laine_karras, pascal_transform
+    from pointillist.plugins.samplers._sobol_matrices import sobol_points
+
+    import drjit as dr
+
+    index = mi.UInt32(np.arange(1 << 16, dtype=np.uint32))
+    np.testing.assert_array_equal(np.asarray(dr.brev(pascal_transform(index))),
+                                  sobol_points(np.arange(1 << 16), 2)[:, 1])
+    laine_karras(index, mi.UInt32(7))
+    np.testing.assert_array_equal(np.asarray(index), np.arange(1 << 16))
+
+
 def test_unscrambled_samplers_are_scipys_sequence(mi):
     """randomization="none": sobol's sample i is scipy's point i in every dimension the integrator asks
     for (2D, 1D, 2D, ... requests); zsobol's samples of one pixel are the same set of 2^m points."""

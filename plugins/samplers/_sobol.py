@@ -28,8 +28,8 @@ import mitsuba as mi
 from pointillist.plugins.properties import integer_property, string_property
 from pointillist.plugins.samplers._base import _SEED_RANGE, GOLDEN_GAMMA, MAX_SAMPLE_COUNT, fmix32, unit_float
 
-__all__ = ["RANDOMIZATIONS", "DIGIT_PERMUTATIONS", "owen_scramble", "sobol_coordinate", "morton2", "zsobol_index",
-           "packed_permutations", "bits_for", "SobolBase"]
+__all__ = ["RANDOMIZATIONS", "DIGIT_PERMUTATIONS", "owen_scramble", "laine_karras", "sobol_coordinate",
+           "pascal_transform", "morton2", "zsobol_index", "packed_permutations", "bits_for", "SobolBase"]
 
 #: ``randomization`` property values: ``owen`` (hash-based Owen scrambling, the default) or
 #: ``none`` (the plain Sobol' sequence, the same in every pixel: for tests and pictures).
@@ -50,22 +50,24 @@ OWEN_MULTIPLIERS = (0x3D20ADEA, 0x05526C56, 0x53A22864)
 TAG_X, TAG_Y, TAG_SHUFFLE = 0x68E31DA4, 0xB5297A4D, 0x1B56C4E9
 
 
+def laine_karras(v, seed):
+    """The Laine-Karras style hash of pbrt-v4's ``FastOwenScrambler`` on bit-reversed values: every
+    step changes bit ``k`` of ``v`` only as a function of its bits below ``k``."""
+    m0, m1, m2 = OWEN_MULTIPLIERS  # (no in-place operators: they would change the caller's array)
+    v = v ^ (v * mi.UInt32(m0))
+    v = (v + seed) * ((seed >> 16) | 1)
+    v = v ^ (v * mi.UInt32(m1))
+    return v ^ (v * mi.UInt32(m2))
+
+
 def owen_scramble(v, seed):
     """Hash-based Owen scrambling of the 32 bits ``v`` (a Sobol' coordinate) with ``seed``.
 
-    pbrt-v4's ``FastOwenScrambler``: reverse the bits, apply the Laine-Karras style hash (every
-    step changes bit ``k`` of the reversed value only as a function of its bits below ``k``),
-    reverse back. Applied to an index instead of a coordinate, it is a nested uniform shuffle:
-    the low ``m`` bits of the result are a permutation of the low ``m`` bits of the index.
+    pbrt-v4's ``FastOwenScrambler``: reverse the bits, :func:`laine_karras`, reverse back. Applied
+    to an index instead of a coordinate it is a nested uniform shuffle: the low ``m`` bits of the
+    result are a permutation of the low ``m`` bits of the index.
     """
-    m0, m1, m2 = OWEN_MULTIPLIERS
-    v = dr.brev(v)
-    v ^= v * mi.UInt32(m0)
-    v += seed
-    v *= (seed >> 16) | 1
-    v ^= v * mi.UInt32(m1)
-    v ^= v * mi.UInt32(m2)
-    return dr.brev(v)
+    return dr.brev(laine_karras(dr.brev(v), seed))
 
 
 def sobol_coordinate(index, column, bits: int):
@@ -79,6 +81,27 @@ def sobol_coordinate(index, column, bits: int):
     for k in range(bits):
         v ^= (mi.UInt32(0) - ((index >> k) & 1)) & column(k)  # all ones where bit k is set
     return v
+
+
+#: Masks of the superset-sum transform over the 5-bit positions of a 32-bit word (:func:`pascal_transform`).
+_PASCAL_STEPS = ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF), (16, 0x0000FFFF))
+
+
+def pascal_transform(index):
+    """Bit ``r`` of the result is the XOR of the bits ``k`` of ``index`` whose position contains ``r``
+    bitwise (``k & r == r``): five shift-and-XOR steps.
+
+    The second Sobol' dimension's generator matrix (primitive polynomial x + 1) is Pascal's triangle
+    mod 2, whose entry ``C(k, r)`` is odd exactly when ``r`` is a bitwise subset of ``k`` (Lucas), so
+    that dimension's point ``index`` is ``dr.brev(pascal_transform(index))``: 20 operations instead of
+    a loop over the index's bits.
+
+    >>> [int(dr.brev(pascal_transform(mi.UInt32(i)))[0]) >> 29 for i in range(4)]  # x 8: 0, 1/2, 3/4, 1/4
+    [0, 4, 6, 2]
+    """
+    for shift, mask in _PASCAL_STEPS:
+        index = index ^ ((index >> shift) & mask)  # (not ^=: that would change the caller's array)
+    return index
 
 
 def morton2(x, y):

@@ -9,9 +9,8 @@ import drjit as dr
 import mitsuba as mi
 
 from pointillist.plugins.samplers._base import GOLDEN_GAMMA, fmix32
-from pointillist.plugins.samplers._sobol import TAG_X, TAG_Y, SobolBase, bits_for, morton2, \
-    packed_permutations, sobol_coordinate, zsobol_index
-from pointillist.plugins.samplers._sobol_matrices import sobol_matrices
+from pointillist.plugins.samplers._sobol import TAG_X, TAG_Y, SobolBase, bits_for, laine_karras, morton2, \
+    packed_permutations, pascal_transform, zsobol_index
 
 __all__ = ["ZSobolSampler", "MORTON_BITS", "film_layout", "morton_levels"]
 
@@ -140,7 +139,6 @@ class ZSobolSampler(SobolBase):
         self._digits, self._odd = 0, False
         permutations = mi.UInt32(packed_permutations())
         self._constants = (permutations, dr.opaque(mi.UInt32, 0))
-        self._column = tuple(int(v) for v in sobol_matrices()[1])  # dimension 1: kernel constants
 
     def attach_film(self, film) -> None:
         """Lay the pixels out as on ``film`` (:func:`film_layout`); ``pointillist.scene`` calls this."""
@@ -185,11 +183,13 @@ class ZSobolSampler(SobolBase):
         permutations, seed_key = self._constants
         key = self._request_key(seed_key, dim)
         index = zsobol_index(self.m_index, key, self._digits, self._odd, permutations)
-        values = [self._scramble(dr.brev(index), key, TAG_X)]  # dimension 0: the bit reversal
-        if count == 2:
-            bits = 2 * self._digits - (1 if self._odd else 0)
-            values.append(self._scramble(sobol_coordinate(index, lambda k: self._column[k], bits), key, TAG_Y))
-        return values
+        # Sobol' dimension 0 is brev(index), dimension 1 brev(pascal_transform(index)); the Owen scramble
+        # (brev, Laine-Karras, brev) then starts from the bits before their reversal.
+        reversed_bits = [index, pascal_transform(index)][:count]
+        if self.scrambled:
+            reversed_bits = [laine_karras(bits, fmix32(key ^ mi.UInt32(tag)))
+                             for bits, tag in zip(reversed_bits, (TAG_X, TAG_Y))]
+        return [dr.brev(bits) for bits in reversed_bits]
 
     def to_string(self) -> str:
         return (f"ZSobolSampler[sample_count={self.sample_count()}, randomization={self.randomization}, "
