@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["NYQUIST", "LOW_FREQUENCY_CUTOFF", "RadialSpectrum", "power_spectrum", "frequency_radius",
-           "radial_power_spectrum", "low_frequency_energy"]
+           "radial_power_spectrum", "low_frequency_energy", "log_binned"]
 
 #: Nyquist frequency of a pixel grid, in cycles per pixel.
 NYQUIST = 0.5
@@ -165,6 +165,37 @@ def radial_power_spectrum(image, *, max_frequency: float = NYQUIST) -> RadialSpe
     with np.errstate(invalid="ignore", divide="ignore"):
         power = np.where(count > 0, total / np.maximum(count, 1), np.nan)
     return RadialSpectrum(frequency=np.arange(rings) / n, power=power, count=count)
+
+
+def log_binned(spectrum: RadialSpectrum, *, per_decade: int = 12) -> RadialSpectrum:
+    """The rings of ``spectrum`` merged into bins of equal width in log frequency, for log-log plots.
+
+    Each bin's power is the mean periodogram over all the frequencies of its rings (rings weighted
+    by ``count``), its frequency their mean radius; empty bins and the DC ring are dropped. Low
+    rings hold few frequencies (ring ``i`` about ``2 pi i``), so their means are noisy; merging
+    them evens the noise out along a log axis.
+
+    Examples
+    --------
+    >>> s = RadialSpectrum(np.array([0, .1, .2, .3]), np.array([9., 1., 2., 4.]), np.array([1, 2, 2, 4]))
+    >>> merged = log_binned(s, per_decade=4)   # bins [0.1, 0.178), [0.178, 0.316): 0.1 | 0.2 and 0.3
+    >>> merged.frequency.round(4).tolist(), merged.power.round(4).tolist(), merged.count.tolist()
+    ([0.1, 0.2667], [1.0, 3.3333], [2, 6])
+    """
+    if isinstance(per_decade, bool) or not isinstance(per_decade, int) or per_decade < 1:
+        raise ValueError(f"per_decade: expected a positive integer, got {per_decade!r}")
+    keep = (spectrum.frequency > 0) & (spectrum.count > 0)
+    frequency, count = spectrum.frequency[keep], spectrum.count[keep]
+    total = spectrum.power[keep] * count
+    if not frequency.size:
+        return RadialSpectrum(frequency=frequency, power=total, count=count)
+    bins = np.floor(np.log10(frequency) * per_decade + 1e-9).astype(np.int64)
+    bins -= bins.min()
+    counts = np.bincount(bins, weights=count)
+    used = counts > 0
+    return RadialSpectrum(frequency=np.bincount(bins, weights=frequency * count)[used] / counts[used],
+                          power=np.bincount(bins, weights=total)[used] / counts[used],
+                          count=counts[used].astype(np.int64))
 
 
 def low_frequency_energy(image, *, cutoff: float = LOW_FREQUENCY_CUTOFF) -> float:

@@ -285,8 +285,11 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
 
 
 def mean_spectra(records: Sequence[Any], spectra: Mapping[str, Any]) -> dict[tuple[str, float], tuple]:
-    """Per (method, value): ``(frequency, mean power over the seeds, mean spp, mean lowfreq)`` of the
-    records whose spectrum ``spectra`` holds (by ``record.exr``)."""
+    """Per (method, value): ``(spectrum, mean spp, mean lowfreq)`` over the seeds of the records whose
+    spectrum ``spectra`` holds (by ``record.exr``), ``spectrum`` a
+    :class:`pointillist.imaging.spectrum.RadialSpectrum` whose power is the seeds' mean."""
+    from pointillist.imaging.spectrum import RadialSpectrum
+
     groups: dict[tuple[str, float], list[Any]] = {}
     for record in records:
         if record.exr in spectra:
@@ -294,15 +297,16 @@ def mean_spectra(records: Sequence[Any], spectra: Mapping[str, Any]) -> dict[tup
     result = {}
     for key, group in groups.items():
         found = [spectra[r.exr] for r in group]
-        result[key] = (found[0].frequency, np.mean([s.power for s in found], axis=0),
-                       float(np.mean([r.spp for r in group])), float(np.mean([r.lowfreq for r in group])))
+        mean = RadialSpectrum(frequency=found[0].frequency, power=np.mean([s.power for s in found], axis=0),
+                              count=found[0].count)
+        result[key] = (mean, float(np.mean([r.spp for r in group])), float(np.mean([r.lowfreq for r in group])))
     return result
 
 
 def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path) -> None:
     """Radially averaged power spectra of the error images: a panel per spp, a curve per method."""
     from pointillist.imaging.io import save_figure
-    from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF
+    from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, log_binned
 
     import matplotlib
 
@@ -311,17 +315,19 @@ def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path
 
     curves = mean_spectra(records, spectra)
     panels = sorted({value for (method, value) in curves if _sweeps_spp(method)}) or \
-        sorted({round(spp) for (_, _, spp, _) in curves.values()})
+        sorted({round(spp) for (_, spp, _) in curves.values()})
     columns = min(max(len(panels), 1), 3)
     rows_n = max(math.ceil(len(panels) / columns), 1)
     fig, axes = plt.subplots(rows_n, columns, figsize=(4.4 * columns, 3.6 * rows_n), dpi=110, squeeze=False)
     methods = list(dict.fromkeys(r.method for r in records))
     for index, panel in enumerate(panels):
         ax = axes.flat[index]
-        for (method, value), (frequency, power, spp, lowfreq) in curves.items():
+        for (method, value), (spectrum, spp, lowfreq) in curves.items():
             near = value if _sweeps_spp(method) else min(panels, key=lambda p: abs(math.log(max(spp, 1e-9) / p)))
             if near != panel:
                 continue
+            merged = log_binned(spectrum)  # rings merged into 12 bins a decade: the low rings are few frequencies
+            frequency, power = merged.frequency, merged.power
             ok = (frequency > 0) & np.isfinite(power) & (power > 0)
             label = f"{method}" + ("" if _sweeps_spp(method) else f" {setting_label(method, value)}") + \
                 f" (low-freq {lowfreq:.2e})"
@@ -340,7 +346,8 @@ def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path
             ax.text(0.5, 0.5, "no spectrum with power > 0", transform=ax.transAxes, ha="center")
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle("Error spectra (radial mean of the periodogram; shaded: up to 1/4 of Nyquist)", fontsize=10)
+    fig.suptitle("Error spectra (radial mean of the periodogram, 12 bins a decade; shaded: up to 1/4 of Nyquist)",
+                 fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
 

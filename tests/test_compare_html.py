@@ -170,6 +170,31 @@ def test_report_leaves_short_renders_out_of_time_slopes_and_rankings(tmp_path):
     assert "which leaves nothing to rank" in text
 
 
+def test_spectrum_plot_averages_seeds_and_places_other_sweeps_at_their_spp(tmp_path):
+    """error_spectrum.png: per (method, value) the seeds' mean spectrum, a panel per spp; adaptive (a threshold
+    sweep) joins the panel of its mean spp."""
+    from pointillist.compare_report import mean_spectra
+    from pointillist.imaging.spectrum import RadialSpectrum
+
+    frequency, count = np.array([0.0, 0.25, 0.5]), np.array([1, 4, 3])
+    records = [fake_record("jitter", 4, 0.03, 0.1, exr=f"j{seed}.exr", seed=seed) for seed in (0, 1)]
+    records += [fake_record("adaptive", 32, 0.03, 0.1, exr="a.exr", spp=3.5)]
+    for record, lowfreq in zip(records, (1e-3, 3e-3, 5e-3)):
+        record.lowfreq = lowfreq
+    spectra = {"j0.exr": RadialSpectrum(frequency, np.array([1.0, 2.0, 4.0]), count),
+               "j1.exr": RadialSpectrum(frequency, np.array([3.0, 4.0, 8.0]), count),
+               "a.exr": RadialSpectrum(frequency, np.array([1.0, 1.0, 1.0]), count),
+               "other.exr": RadialSpectrum(frequency, np.zeros(3), count)}
+    means = mean_spectra(records, spectra)
+    assert set(means) == {("jitter", 4.0), ("adaptive", 32.0)}
+    spectrum, spp, lowfreq = means[("jitter", 4.0)]
+    assert spectrum.power.tolist() == [2.0, 3.0, 6.0] and spp == 4 and lowfreq == pytest.approx(2e-3)
+    paths = write_report(records, tmp_path, scene="s.xml", reference="r.exr", spectra=spectra)
+    assert paths["spectrum_plot"].stat().st_size > 10_000
+    (tmp_path / "none").mkdir()
+    assert "spectrum_plot" not in write_report(records, tmp_path / "none", scene="s.xml", reference="r.exr")
+
+
 def test_run_sweep_logs_one_line_per_render_off_a_terminal(tmp_path, capsys):
     """Standard error is not a terminal under pytest: no bar redraws, one log line per finished render."""
     from pointillist.compare import Task, run_sweep

@@ -219,15 +219,26 @@ def test_bad_sample_count(mi):
         mi.load_dict({"type": "jitter", "sample_count": 0})
 
 
-@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
-@pytest.mark.parametrize("key,value,error,message", [
+_BAD_PROPERTIES = [
     ("sample_count", "abc", TypeError, "sample_count: expected an integer, got str"),
     ("sample_count", 2.5, TypeError, "sample_count: expected an integer, got float"),
     ("sample_count", -1, ValueError, "sample_count: expected an integer in 1..16777216, got -1"),
     ("sample_count", 0, ValueError, "sample_count: expected an integer in 1..16777216, got 0"),
     ("seed", "7", TypeError, "seed: expected an integer, got str"),
     ("seed", 1.5, TypeError, "seed: expected an integer, got float"),
-])
+]
+_BAD_RANDOMIZATION = [  # sobol and zsobol only
+    ("randomization", "fast", ValueError, "randomization: expected one of owen, none, got 'fast'"),
+    ("randomization", 3, TypeError, "randomization: expected a string, got int"),
+]
+
+
+_ALL_SAMPLERS = ("grid", "jitter", "poisson", "sobol", "zsobol")
+
+
+@pytest.mark.parametrize("name,key,value,error,message",
+                         [(n, *case) for n in _ALL_SAMPLERS for case in _BAD_PROPERTIES]
+                         + [(n, *case) for n in ("sobol", "zsobol") for case in _BAD_RANDOMIZATION])
 def test_bad_properties_name_the_property(mi, name, key, value, error, message):
     # read through the shared property readers (plugins/properties.py) before Mitsuba coerces them
     cls = importlib.import_module(f"pointillist.plugins.samplers.{name}").PLUGIN_CLASS
@@ -240,10 +251,11 @@ def test_bad_properties_name_the_property(mi, name, key, value, error, message):
 
 
 def test_set_sample_count_checks_its_argument(mi):
-    sampler = mi.load_dict({"type": "grid", "sample_count": 4})
-    for bad in (0, -3, 2.0, "8", True):
-        with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
-            sampler.set_sample_count(bad)
+    for name in ("sobol", "zsobol", "grid"):
+        sampler = mi.load_dict({"type": name, "sample_count": 4})
+        for bad in (0, -3, 2.0, "8", True):
+            with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
+                sampler.set_sample_count(bad)
     sampler.set_sample_count(np.int64(9))
     assert sampler.sample_count() == 9 and (sampler.rows, sampler.cols) == (3, 3)
 

@@ -6,7 +6,6 @@ pixels, and where the error goes on scenes/edges.xml."""
 from __future__ import annotations
 
 import doctest
-import importlib
 import math
 import warnings
 from pathlib import Path
@@ -389,27 +388,6 @@ def test_clone_fork_and_state(mi, name):
     sampler.advance()
     again = np.asarray(sampler.next_2d()).T.reshape(8, 4, 2)
     assert not np.allclose(again, first[0]) and all(is_net(p, 2) for p in again)
-
-
-@pytest.mark.parametrize("name", ["sobol", "zsobol"])
-@pytest.mark.parametrize("key,value,error,message", [
-    ("randomization", "fast", ValueError, "randomization: expected one of owen, none, got 'fast'"),
-    ("randomization", 3, TypeError, "randomization: expected a string, got int"),
-    ("sample_count", 0, ValueError, "sample_count: expected an integer in 1..16777216, got 0"),
-    ("seed", 1.5, TypeError, "seed: expected an integer, got float"),
-])
-def test_bad_properties_name_the_property(mi, name, key, value, error, message):
-    cls = importlib.import_module(f"pointillist.plugins.samplers.{name}").PLUGIN_CLASS
-    props = mi.Properties(name)
-    props[key] = value
-    with pytest.raises(error, match=message):
-        cls(props)
-    with pytest.raises(RuntimeError, match=message):
-        mi.load_dict({"type": name, key: value})
-    sampler = mi.load_dict({"type": name, "sample_count": 4})
-    for bad in (0, -3, 2.0, "8", True):
-        with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
-            sampler.set_sample_count(bad)
 
 
 @pytest.mark.parametrize("name", ["sobol", "zsobol"])

@@ -15,8 +15,8 @@ from hypothesis.extra.numpy import arrays
 
 from pointillist.imaging import spectrum as spectrum_module
 from pointillist.imaging.metrics import error_spectrum, image_errors, luminance_error
-from pointillist.imaging.spectrum import (LOW_FREQUENCY_CUTOFF, NYQUIST, frequency_radius, low_frequency_energy,
-                                          power_spectrum, radial_power_spectrum)
+from pointillist.imaging.spectrum import (LOW_FREQUENCY_CUTOFF, NYQUIST, RadialSpectrum, frequency_radius,
+                                          log_binned, low_frequency_energy, power_spectrum, radial_power_spectrum)
 
 
 def test_white_noise_is_flat_at_its_variance(rng):
@@ -133,6 +133,20 @@ def test_properties_over_arbitrary_images(image, cutoff):
     n = max(image.shape)
     assert spectrum.count.sum() == (np.rint(frequency_radius(image.shape) * n) <= n // 2).sum()
     assert np.all(spectrum.power[spectrum.count > 0] >= 0)
+
+
+def test_log_binned_keeps_the_energy_of_the_rings(rng):
+    spectrum = radial_power_spectrum(rng.normal(size=(64, 48)))
+    merged = log_binned(spectrum, per_decade=5)
+    ring = spectrum.count > 0
+    ring[0] = False  # DC is dropped
+    assert merged.count.sum() == spectrum.count[ring].sum()
+    assert (merged.power * merged.count).sum() == pytest.approx((spectrum.power * spectrum.count)[ring].sum())
+    assert np.all(np.diff(merged.frequency) > 0) and np.all(np.diff(np.log10(merged.frequency)) > 0.1)
+    empty = log_binned(RadialSpectrum(np.array([0.0]), np.array([4.0]), np.array([1])))
+    assert empty.frequency.size == 0 and empty.power.size == 0
+    with pytest.raises(ValueError, match="per_decade: expected a positive integer"):
+        log_binned(spectrum, per_decade=0)
 
 
 def test_error_spectrum_is_the_luminance_errors(rng):

@@ -19,14 +19,14 @@ or digits of an index while the kernel is traced, never over samples.
 
 from __future__ import annotations
 
-import numbers
 import warnings
 
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.plugins.properties import integer_property, string_property
-from pointillist.plugins.samplers._base import _SEED_RANGE, GOLDEN_GAMMA, MAX_SAMPLE_COUNT, fmix32, unit_float
+from pointillist.plugins.properties import string_property
+from pointillist.plugins.samplers._base import (GOLDEN_GAMMA, checked_sample_count, fmix32, read_count_and_seed,
+                                               unit_float, wavefront_lanes)
 
 __all__ = ["RANDOMIZATIONS", "DIGIT_PERMUTATIONS", "owen_scramble", "laine_karras", "sobol_coordinate",
            "pascal_transform", "morton2", "zsobol_index", "packed_permutations", "bits_for", "SobolBase"]
@@ -178,9 +178,7 @@ class SobolBase(mi.Sampler):
     _STATE: tuple[str, ...] = ()
 
     def __init__(self, props: mi.Properties):
-        # Checked before Mitsuba's own reader sees them (it would wrap or coerce a bad value).
-        integer_property(props, "sample_count", 4, 1, MAX_SAMPLE_COUNT)
-        self._base_seed = integer_property(props, "seed", 0, *_SEED_RANGE)
+        self._base_seed = read_count_and_seed(props)
         self.randomization = string_property(props, "randomization", "owen", RANDOMIZATIONS)
         super().__init__(props)
         spp = int(self.sample_count())
@@ -202,9 +200,7 @@ class SobolBase(mi.Sampler):
         return spp
 
     def set_sample_count(self, spp: int) -> None:
-        if isinstance(spp, bool) or not isinstance(spp, numbers.Integral) or not 1 <= spp <= MAX_SAMPLE_COUNT:
-            raise ValueError(f"sample_count: expected an integer in 1..{MAX_SAMPLE_COUNT}, got {spp!r}")
-        spp = self._round_count(int(spp))
+        spp = self._round_count(checked_sample_count(spp))
         super().set_sample_count(spp)
         self._configure(spp)
 
@@ -216,14 +212,8 @@ class SobolBase(mi.Sampler):
     def seed(self, seed=0, wavefront_size: int = 2**32 - 1) -> None:
         """Lanes ``pixel * spp + sample`` (Mitsuba's single-pass wavefront)."""
         super().seed(seed, wavefront_size)
-        size = int(self.wavefront_size())
-        spp = int(self.sample_count())
-        seed_value = mi.UInt32(seed) + mi.UInt32(self._base_seed & 0xFFFFFFFF)
-        dr.make_opaque(seed_value)
-        lane = dr.arange(mi.UInt32, size)
-        spp_opaque = dr.opaque(mi.UInt32, spp)
-        pixel = lane // spp_opaque
-        self._seed_lanes(seed_value, pixel, lane - pixel * spp_opaque, -(-size // spp))
+        seed_value, pixel, sample = wavefront_lanes(self, seed, self._base_seed)
+        self._seed_lanes(seed_value, pixel, sample, -(-int(self.wavefront_size()) // int(self.sample_count())))
         self.m_dim = dr.opaque(mi.UInt32, 0)
 
     def advance(self) -> None:
