@@ -331,16 +331,19 @@ def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path
             ok = (frequency > 0) & np.isfinite(power) & (power > 0)
             label = f"{method}" + ("" if _sweeps_spp(method) else f" {setting_label(method, value)}") + \
                 f" (low-freq {lowfreq:.2e})"
-            ax.plot(frequency[ok], power[ok], color=f"C{methods.index(method) % 10}", linewidth=1.2, label=label)
-        ax.axvspan(0, LOW_FREQUENCY_CUTOFF, color="grey", alpha=0.12, linewidth=0)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlim(right=0.5)
+            if ok.any():
+                ax.plot(frequency[ok], power[ok], color=f"C{methods.index(method) % 10}", linewidth=1.2,
+                        label=label)
         ax.set_title(f"{panel:g} spp", fontsize=10)
         ax.set_xlabel("frequency (cycles per pixel)")
         ax.set_ylabel("power of the luminance error")
-        ax.grid(True, which="both", alpha=0.3)
-        if ax.lines:
+        if ax.lines:  # log axes only for positive data (an error-free render, e.g. a black scene, has none)
+            lowest = min(float(line.get_xdata().min()) for line in ax.lines)
+            ax.axvspan(lowest, LOW_FREQUENCY_CUTOFF, color="grey", alpha=0.12, linewidth=0)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlim(right=0.5)
+            ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=7)
         else:
             ax.text(0.5, 0.5, "no spectrum with power > 0", transform=ax.transAxes, ha="center")

@@ -132,13 +132,13 @@ class ZSobolSampler(SobolBase):
         return rounded
 
     def _configure(self, spp: int) -> None:
-        self.log2_spp = spp.bit_length() - 1
-        if not hasattr(self, "_film"):
+        self.log2_spp = spp.bit_length() - 1  # (seed() lays the lanes out again for a new count)
+        if not hasattr(self, "_film"):  # first call, from the constructor
             self._film: tuple = ()
             self._warned = False
-        self._digits, self._odd = 0, False
-        permutations = mi.UInt32(packed_permutations())
-        self._constants = (permutations, dr.opaque(mi.UInt32, 0))
+            self._digits, self._odd = 0, False
+            # (the digit permutations, the seed): in a tuple, which Dr.Jit does not traverse as loop state
+            self._constants = (mi.UInt32(packed_permutations()), dr.opaque(mi.UInt32, 0))
 
     def attach_film(self, film) -> None:
         """Lay the pixels out as on ``film`` (:func:`film_layout`); ``pointillist.scene`` calls this."""
