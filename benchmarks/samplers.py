@@ -218,7 +218,7 @@ def sobol_part(args) -> None:
 
     pointillist.setup()
     load_before = os.getloadavg()
-    repeats = max(args.repeats, 9)
+    repeats = max(args.repeats, 15)
     lines = ["## sobol and zsobol (issue 31)", "",
              f"Machine: {platform.machine()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, libLLVM {dr.detail.llvm_version()}.",
@@ -227,10 +227,13 @@ def sobol_part(args) -> None:
 
     # 1. cost at 16 spp, interleaved
     lines += [f"**Render time at 16 spp** (image evaluated; first call = JIT compile or ~/.drjit cache load; steady = "
-              f"median of {repeats} interleaved rounds; the four scenes of a row group are loaded together, so "
-              "each pays alike for the others' instances)", "",
-              "| scene | sampler | first call (s) | of which compile (s) | steady (s) | ratio vs independent |",
-              "|---|---|---:|---:|---:|---:|"]
+              f"median of {repeats} interleaved rounds, wall clock and this process's CPU time (all its threads: "
+              "the work, without the waiting for other agents' jobs); the four scenes of a row group are loaded "
+              "together, so each pays alike for the others' instances; kernel operations: the render kernel's "
+              "size in Dr.Jit IR operations)", "",
+              "| scene | sampler | first call (s) | of which compile (s) | steady wall (s) | wall ratio vs independent "
+              "| steady CPU (s) | CPU ratio | kernel operations |",
+              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     names = ("independent", "jitter", "sobol", "zsobol")
     ratios = {}
     for label, make in (("edges.xml 256², direct", lambda n: load_configured_scene(
@@ -242,17 +245,22 @@ def sobol_part(args) -> None:
             for scene in scenes.values():
                 attach_films(scene)
         first = {name: timed_render(scenes[name], spp=16, seed=0)[1] for name in names}
+        operations = {name: _kernel_operations(mi, scenes[name]) for name in names}
         steady = {name: [] for name in names}
+        cpu = {name: [] for name in names}
         for i in range(repeats):
             order = names if i % 2 == 0 else names[::-1]  # alternate, so that who runs first varies
             for name in order:
+                start = time.process_time()
                 steady[name].append(timed_render(scenes[name], spp=16, seed=i + 1)[1].total)
-        base = float(np.median(steady["independent"]))
+                cpu[name].append(time.process_time() - start)
+        base, base_cpu = float(np.median(steady["independent"])), float(np.median(cpu["independent"]))
         for name in names:
-            median = float(np.median(steady[name]))
+            median, median_cpu = float(np.median(steady[name])), float(np.median(cpu[name]))
             ratios[label, name] = median / base
             lines.append(f"| {label} | {name} | {first[name].total:.3f} | {first[name].compile:.3f} | {median:.4f} | "
-                         f"{median / base:.3f} |")
+                         f"{median / base:.3f} | {median_cpu:.4f} | {median_cpu / base_cpu:.3f} | "
+                         f"{operations[name]} |")
         del scenes
     load_mid = os.getloadavg()
 
@@ -330,6 +338,20 @@ def sobol_part(args) -> None:
         from _results import write_block
 
         print(f"wrote {write_block('samplers_sobol', text)}")
+
+
+def _kernel_operations(mi, scene) -> int:
+    """IR operations of the largest kernel of a 16-spp render of ``scene`` (its render kernel)."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        dr.eval(mi.render(scene, spp=16, seed=99))
+        dr.sync_thread()
+        return max(k["operation_count"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 def blue_noise_shares(mi, side: int = 256, seeds: int = 4) -> dict:

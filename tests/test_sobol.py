@@ -296,6 +296,26 @@ def test_owen_scramble_permutes_each_level(mi):
         assert sorted(scrambled.tolist()) == list(range(1024))
 
 
+def test_zsobol_digit_permutations_are_uniform_and_independent_between_siblings(mi):
+    """Over 23040 keys (seed and dimension), the permutation of a quadtree node's children is each of the 24
+    equally often, and two sibling nodes' permutations are independent (chi-square over the 576 pairs; a
+    hash of a single multiplication fails this with p = 0)."""
+    from scipy import stats
+
+    from pointillist.plugins.samplers._sobol import DIGIT_PERMUTATIONS, packed_permutations, zsobol_index
+
+    number = {p: i for i, p in enumerate(DIGIT_PERMUTATIONS)}
+    keys = mi.UInt32(np.random.default_rng(1).integers(0, 2 ** 32, 23040, dtype=np.uint64).astype(np.uint32))
+    table = mi.UInt32(packed_permutations())
+    chosen = []
+    for node in (0, 1):  # two siblings under the root: Morton indices 4 node + d, two digits
+        digits = [np.asarray(zsobol_index(mi.UInt32(np.full(23040, 4 * node + d, np.uint32)), keys, 2, False, table))
+                  & 3 for d in range(4)]
+        chosen.append(np.array([number[tuple(p)] for p in np.stack(digits, 1)]))
+    assert stats.chisquare(np.bincount(chosen[0], minlength=24)).pvalue > 1e-3
+    assert stats.chisquare(np.bincount(chosen[0] * 24 + chosen[1], minlength=576)).pvalue > 1e-3
+
+
 # ----------------------------------------------------------------- blue-noise error
 def low_share(error: np.ndarray) -> float:
     from pointillist.imaging.spectrum import low_frequency_energy

@@ -29,7 +29,8 @@ from pointillist.plugins.samplers._base import (GOLDEN_GAMMA, checked_sample_cou
                                                unit_float, wavefront_lanes)
 
 __all__ = ["RANDOMIZATIONS", "DIGIT_PERMUTATIONS", "owen_scramble", "laine_karras", "sobol_coordinate",
-           "pascal_transform", "morton2", "zsobol_index", "packed_permutations", "bits_for", "SobolBase"]
+           "pascal_transform", "morton2", "node_hash", "zsobol_index", "packed_permutations", "bits_for",
+           "SobolBase"]
 
 #: ``randomization`` property values: ``owen`` (hash-based Owen scrambling, the default) or
 #: ``none`` (the plain Sobol' sequence, the same in every pixel: for tests and pictures).
@@ -131,6 +132,20 @@ def packed_permutations() -> list[int]:
     return [sum(p[d] << (2 * d) for d in range(4)) for p in DIGIT_PERMUTATIONS]
 
 
+def node_hash(x):
+    """A 32-bit hash whose *top* bits (read with ``dr.mul_hi``) choose a quadtree node's permutation.
+
+    MurmurHash3's finaliser (:func:`fmix32`) less its first and last xor-shifts: the last changes only
+    the low 16 bits, which ``mul_hi`` does not read, and the node numbers hashed here are XORed with a
+    random 32-bit key first. Sibling nodes still get independent permutations (tests/test_sobol.py:
+    chi-square over the 24 x 24 pairs); a single multiplication would not (siblings' choices a fixed
+    stride apart). Four operations fewer per digit than fmix32.
+    """
+    x = x * mi.UInt32(0x85EBCA6B)
+    x = x ^ (x >> 13)
+    return x * mi.UInt32(0xC2B2AE35)
+
+
 def zsobol_index(morton_index, key, digits: int, odd: bool, permutations):
     """pbrt-v4's ``ZSobolSampler::GetSampleIndex``: the Sobol' index of a (pixel, sample).
 
@@ -147,11 +162,11 @@ def zsobol_index(morton_index, key, digits: int, odd: bool, permutations):
         shift = 2 * i - low
         digit = (morton_index >> shift) & 3
         higher = morton_index >> (shift + 2) if shift + 2 < 32 else mi.UInt32(0)
-        choice = dr.mul_hi(fmix32(higher ^ key), mi.UInt32(len(DIGIT_PERMUTATIONS)))
+        choice = dr.mul_hi(node_hash(higher ^ key), mi.UInt32(len(DIGIT_PERMUTATIONS)))
         packed = dr.gather(mi.UInt32, permutations, choice)
         index |= ((packed >> (digit << 1)) & 3) << shift
     if odd:
-        index |= (morton_index & 1) ^ (fmix32((morton_index >> 1) ^ key) & 1)
+        index |= (morton_index & 1) ^ (node_hash((morton_index >> 1) ^ key) >> 31)
     return index
 
 
