@@ -7,11 +7,12 @@ renders with :func:`pointillist.scene.timed_render`, writes ``renders/<task>.exr
 and ``renders/<task>.json`` and returns a :class:`RenderRecord`). A task whose EXR
 and record exist for the same scene is not rendered again, so an interrupted sweep
 resumes where it stopped. Errors against the reference are computed afterwards
-(:func:`pointillist.imaging.metrics.image_errors`) and kept with the render (the scores in its
-record, the per-pixel maps of a seed-0 render in ``renders/<task>.maps.npz``, keyed by the
-render and the reference: :func:`scores_key`), so a rerun scores only what changed; and
-:func:`pointillist.compare_report.write_report` writes
-``results.csv``, ``results.md`` and the two log-log plots, and
+(:func:`pointillist.imaging.metrics.image_errors`, and the power spectrum of each error image)
+and kept with the render (the scores in its record, the spectrum and the per-pixel maps of a
+seed-0 render in ``renders/<task>.maps.npz``, keyed by the render and the reference:
+:func:`scores_key`), so a rerun scores only what changed; and
+:func:`pointillist.compare_report.write_report` writes ``results.csv``, ``results.md``, the two
+log-log plots and the error spectra, and
 :func:`pointillist.compare_html.write_html_report` ``report.html`` (renders, error
 maps, interactive plots), from every record of the sweep on disk. On a Dask cluster
 (:func:`prerender_sweep`) every missing render is a task; the scoring pass that
@@ -111,6 +112,7 @@ class RenderRecord:
     rmse: float = math.nan
     relmse: float = math.nan
     flip: float = math.nan
+    lowfreq: float = math.nan
     scores_key: str = ""
     notice: str = ""
 
@@ -182,8 +184,9 @@ def _write_json(path: Path, data: dict) -> None:
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
 #: The definition of the stored scores: bump it when a score is defined or computed differently
-#: (relMSE's epsilon, FLIP's implementation), so that scores stored by an older version are computed again.
-SCORES_VERSION = 1
+#: (relMSE's epsilon, FLIP's implementation), so that scores stored by an older version are computed again
+#: (2: the low-frequency error and the error spectrum were added).
+SCORES_VERSION = 2
 
 
 def scores_key(render: str | os.PathLike, reference_digest: str) -> str:
@@ -208,26 +211,43 @@ def image_digest(image: np.ndarray) -> str:
 
 
 def maps_path(exr: str | os.PathLike) -> Path:
-    """Where the per-pixel error maps of the render ``exr`` are kept: ``<task>.maps.npz`` beside it."""
+    """Where the error spectrum (and a seed-0 render's per-pixel error maps) of the render ``exr`` are kept:
+    ``<task>.maps.npz`` beside it."""
     exr = Path(exr)
     return exr.with_name(exr.stem + ".maps.npz")
 
 
-def _load_maps(path: Path, key: str) -> dict[str, np.ndarray] | None:
-    """The maps stored at ``path`` for ``key`` (relmse and flip), or None (missing, stale or unreadable)."""
+#: The per-pixel maps kept for a seed-0 render (the report page's error maps).
+_MAPS = ("relmse", "flip")
+
+
+def _load_scores(path: Path, key: str, *, maps: bool) -> dict[str, Any] | None:
+    """What :func:`_save_scores` stored at ``path`` for ``key``: the error spectrum and, with ``maps``,
+    the relmse and flip maps; None when missing, stale or unreadable."""
+    from pointillist.imaging.spectrum import RadialSpectrum
+
     try:
         with np.load(path) as stored:
             if str(stored["scores_key"]) != key:
                 return None
-            return {"relmse": stored["relmse"], "flip": stored["flip"]}
+            found: dict[str, Any] = {"spectrum": RadialSpectrum(stored["spectrum_frequency"], stored["spectrum_power"],
+                                                                stored["spectrum_count"])}
+            if maps:
+                found.update({name: stored[name] for name in _MAPS})
+            return found
     except (OSError, KeyError, ValueError):
         return None
 
 
-def _save_maps(path: Path, key: str, maps: dict[str, np.ndarray]) -> None:
+def _save_scores(path: Path, key: str, scores: dict[str, Any], *, maps: bool) -> None:
     from pointillist.imaging.io import atomic_write
 
-    atomic_write(path, lambda tmp: np.savez(tmp, scores_key=np.array(key), relmse=maps["relmse"], flip=maps["flip"]))
+    spectrum = scores["spectrum"]
+    arrays = dict(scores_key=np.array(key), spectrum_frequency=spectrum.frequency, spectrum_power=spectrum.power,
+                  spectrum_count=spectrum.count)
+    if maps:
+        arrays.update({name: scores[name] for name in _MAPS})
+    atomic_write(path, lambda tmp: np.savez(tmp, **arrays))
 
 
 #: Methods rendered at least once in this process (:func:`render_one`'s warm-up).
@@ -334,18 +354,21 @@ def render_reference(scene_path: str, params: dict[str, str] | None, out_dir: st
 def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str,
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
               maps: dict[str, dict[str, np.ndarray]] | None = None,
+              spectra: dict[str, Any] | None = None,
               render: Callable[..., RenderRecord] = render_one, key: str | None = None) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
 
     With ``progress``, a progress bar draws on a terminal (standard error a TTY);
     otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
     of the bar's redraws. A ``maps`` dict receives the per-pixel error maps of every
-    seed-0 render (by ``record.exr``, :func:`pointillist.imaging.metrics.error_maps`) for the report page.
+    seed-0 render (by ``record.exr``, :func:`pointillist.imaging.metrics.error_maps`) for the report page;
+    a ``spectra`` dict the radially averaged power spectrum of every render's luminance error
+    (by ``record.exr``, :func:`pointillist.imaging.metrics.error_spectrum`) for the spectrum plot.
 
-    Scores are kept: a render's errors go into its JSON record with their :func:`scores_key`
-    (and a seed-0 render's maps into :func:`maps_path`); a render whose stored scores have the
-    key of this render file and this reference (and whose maps are there when needed) is not
-    scored again; with ``progress``, ``log`` is told how many were reused.
+    Scores are kept: a render's errors go into its JSON record with their :func:`scores_key`,
+    its error spectrum (and a seed-0 render's maps) into :func:`maps_path`; a render whose stored
+    scores have the key of this render file and this reference (and whose spectrum and maps are
+    there) is not scored again; with ``progress``, ``log`` is told how many were reused.
     """
     import sys
 
@@ -353,7 +376,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
 
     from pointillist.compare_report import format_time
     from pointillist.imaging.io import read_exr
-    from pointillist.imaging.metrics import image_errors
+    from pointillist.imaging.metrics import error_spectrum, image_errors
 
     key = key or scene_key(scene_path, params)
     ref_image = read_exr(reference).image
@@ -377,19 +400,20 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
         exr = Path(out_dir) / "renders" / record.exr
         score_key = scores_key(exr, digest)
         keep_maps = record.seed == 0                      # the report page shows each point's seed-0 render
-        stored = _load_maps(maps_path(exr), score_key) if keep_maps else {}
+        stored = _load_scores(maps_path(exr), score_key, maps=keep_maps)
         if record.scores_key == score_key and stored is not None:
             reused += 1
-            kept = stored
         else:
-            kept = {}
-            record.__dict__.update(image_errors(read_exr(exr).image, ref_image, maps=kept))
+            image, stored = read_exr(exr).image, {}
+            record.__dict__.update(image_errors(image, ref_image, maps=stored))
+            stored["spectrum"] = error_spectrum(image, ref_image)
             record.scores_key = score_key
             _write_json(exr.with_suffix(".json"), record_json(record))
-            if keep_maps:
-                _save_maps(maps_path(exr), score_key, kept)
+            _save_scores(maps_path(exr), score_key, stored, maps=keep_maps)
         if maps is not None and keep_maps:
-            maps[record.exr] = kept
+            maps[record.exr] = {name: stored[name] for name in _MAPS}
+        if spectra is not None:
+            spectra[record.exr] = stored["spectrum"]
     if progress and log is not None and reused:
         log(f"compare: scores of {reused} of {len(records)} renders reused (same render and reference)")
     return records
@@ -555,11 +579,13 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
                 notes.append(note)
                 log(note)
         maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
+        spectra: dict[str, Any] = {}
         records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
-                            progress=progress, log=log, maps=maps, key=key)
+                            progress=progress, log=log, maps=maps, spectra=spectra, key=key)
         signals.check()
         title = f"Sampler comparison: {scene.name}"
-        paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes)
+        paths = write_report(records, out, scene=str(scene), reference=str(reference), title=title, notes=notes,
+                             spectra=spectra)
         if report:
             from pointillist.compare_html import write_html_report
 

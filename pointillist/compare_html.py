@@ -5,7 +5,9 @@ with the results table (:func:`pointillist.compare_report.results_table`), the p
 script (``pointillist/report/report.js``, inlined) and the data as JSON: every sweep
 point's numbers and, for the lowest seed of each point, its render as HDR data
 (float16 RGB, base64), its per-pixel relMSE and HDR-FLIP maps (:func:`pointillist.imaging.metrics.error_maps`,
-float16) and an adaptive method's ``sample_count`` layer; the reference likewise. The
+float16), an adaptive method's ``sample_count`` layer and the radially averaged power spectrum of
+its luminance error (:func:`pointillist.imaging.metrics.error_spectrum`, plotted beside the maps
+of the renders on show); the reference likewise. The
 page applies exposure and the sRGB transfer function itself, draws the maps through
 colour tables computed here (viridis for relMSE on a log scale, magma for FLIP as in
 the FLIP paper, cividis for sample counts) and needs no network, server or build step
@@ -34,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.imaging.metrics import as_rgb, error_maps
+from pointillist.imaging.metrics import as_rgb, error_maps, error_spectrum
+from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, NYQUIST
 from pointillist.compare_methods import setting_label, sweep_parameter
 from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, slopes, summarise
 from pointillist.render_output import SAMPLE_COUNT_LAYER
@@ -210,6 +213,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     rows = summarise(records)
     fitted = slopes(rows, min_time=TIMING_FLOOR)
     renders, relmse_maps, count_maps = [], [], []
+    frequency = None
     for index, ((method, value), record) in enumerate(chosen.items()):
         exr = read_exr(out / "renders" / record.exr)
         image = as_rgb(exr.image)
@@ -220,11 +224,15 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         pixel_maps = found if found is not None and {"relmse", "flip"} <= found.keys() else error_maps(image, ref)
         counts = exr.layers.get(SAMPLE_COUNT_LAYER)
         relmse_maps.append(shrink(pixel_maps["relmse"]))
+        spectrum = error_spectrum(image, ref)
+        frequency = spectrum.frequency
         entry = {"id": index, "method": method, "value": value, "setting": setting_label(method, value),
                  "seed": record.seed, "spp": _finite(record.spp), "time": _finite(record.time),
                  "relmse": _finite(record.relmse), "flip": _finite(record.flip),
+                 "lowfreq": _finite(getattr(record, "lowfreq", math.nan)),
                  "rgb": encode_half(shrink(image)), "relmse_map": encode_half(relmse_maps[-1]),
-                 "flip_map": encode_half(shrink(pixel_maps["flip"])), "count_map": None}
+                 "flip_map": encode_half(shrink(pixel_maps["flip"])), "count_map": None,
+                 "spectrum": [_finite(float(f"{v:.4g}")) for v in spectrum.power]}
         if counts is not None:
             count_maps.append(shrink(counts))
             entry["count_map"] = encode_half(count_maps[-1])
@@ -232,7 +240,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     render_of = {(r["method"], r["value"]): r["id"] for r in renders}
     points = [{"method": r["method"], "value": r["value"], "setting": setting_label(r["method"], r["value"]),
                "seeds": r["seeds"], "spp": _finite(r["spp"]), "time": _finite(r["time"]), "mse": _finite(r["mse"]),
-               "relmse": _finite(r["relmse"]), "flip": _finite(r["flip"]), "time_text": format_time(r["time"]),
+               "relmse": _finite(r["relmse"]), "flip": _finite(r["flip"]), "lowfreq": _finite(r["lowfreq"]),
+               "time_text": format_time(r["time"]),
                "short": bool(r["time"] < TIMING_FLOOR), "render": render_of[(r["method"], float(r["value"]))]}
               for r in rows]
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -249,6 +258,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
                     for i, m in enumerate(methods)],
         "timing_floor": TIMING_FLOOR, "timing_floor_text": format_time(TIMING_FLOOR),
         "scales": _scales(relmse_maps, count_maps),
+        "spectrum": {"frequency": [float(f) for f in frequency], "cutoff": LOW_FREQUENCY_CUTOFF,
+                     "nyquist": NYQUIST},
         "colormaps": {name: colormap_table(name) for name in ("viridis", "magma", "cividis")},
     }
     header, cells = results_table(rows)

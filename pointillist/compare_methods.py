@@ -70,7 +70,7 @@ def register_method(method: Method) -> None:
     METHODS[method.name] = method
 
 for _name, _plugin in (("grid", "grid"), ("jitter", "jitter"), ("poisson", "poisson"),
-                       ("random", "independent")):
+                       ("random", "independent"), ("sobol", "sobol"), ("zsobol", "zsobol")):
     register_method(Method(_name, _plugin))
 
 for _name in MITSUBA_SAMPLERS:

@@ -3,7 +3,8 @@
 Everything here works on :class:`pointillist.compare.RenderRecord` values (or the
 rows :func:`summarise` makes of them) and renders nothing: :func:`write_report`
 writes ``results.csv``, ``results.md`` (table, fitted log-log slopes, equal-time and
-equal-error rankings) and the two log-log plots of error against time and spp.
+equal-error rankings), the two log-log plots of error against time and spp, and the
+plot of the error images' radially averaged power spectra (``error_spectrum.png``).
 Times read with three significant digits in a fitting unit (:func:`format_time`);
 renders faster than :data:`TIMING_FLOOR` are too short to time reliably: they are
 marked, and the time slopes and rankings leave them out.
@@ -14,7 +15,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 from pointillist.compare_methods import setting_label, sweep_parameter
 
 __all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "report_paths",
-           "write_report", "format_time", "results_table", "TIMING_FLOOR"]
+           "write_report", "format_time", "results_table", "mean_spectra", "TIMING_FLOOR"]
 
 
 #: Renders shorter than this (seconds) are too short to time reliably here: timer resolution,
@@ -73,7 +74,7 @@ def summarise(records: Sequence[Any]) -> list[dict[str, Any]]:
     rows = []
     for (method, value), group in groups.items():
         row: dict[str, Any] = {"method": method, "value": value, "seeds": len(group)}
-        for name in ("spp", "time", "compile", "rmse", "relmse", "flip"):
+        for name in ("spp", "time", "compile", "rmse", "relmse", "flip", "lowfreq"):
             data = np.array([getattr(r, name) for r in group], float)
             row[name] = float(data.mean())
             row[f"{name}_std"] = float(data.std(ddof=1)) if len(data) > 1 else 0.0
@@ -153,8 +154,8 @@ def _sweeps_spp(method: str) -> bool:
     return sweep_parameter(method) == "spp"
 
 _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "execute", "total",
-               "warm_up", "warm_up_compile", "kernels", "cache_hits", "rmse", "relmse", "flip", "width", "height",
-               "exr")
+               "warm_up", "warm_up_compile", "kernels", "cache_hits", "rmse", "relmse", "flip", "lowfreq", "width",
+               "height", "exr")
 
 #: Columns of results.csv in seconds: written with three significant digits.
 _CSV_TIMES = ("time", "compile", "trace", "execute", "total", "warm_up", "warm_up_compile")
@@ -169,11 +170,11 @@ def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[
     Examples
     --------
     >>> rows = [{"method": "jitter", "value": 4.0, "spp": 4.0, "seeds": 2, "time": 0.0123, "time_std": 0.0004,
-    ...          "compile": 0.5, "rmse": 0.01, "rmse_std": 0.001, "relmse": 2e-3, "flip": 0.05}]
+    ...          "compile": 0.5, "rmse": 0.01, "rmse_std": 0.001, "relmse": 2e-3, "flip": 0.05, "lowfreq": 4e-6}]
     >>> results_table(rows)[1][0]
-    ['jitter', '4 spp', '4', '2', '12.3 ± 0.4 ms *', '500 ms', '0.01000 ± 0.00100', '2.000e-03', '0.0500']
+    ['jitter', '4 spp', '4', '2', '12.3 ± 0.4 ms *', '500 ms', '0.01000 ± 0.00100', '2.000e-03', '0.0500', '4.000e-06']
     """
-    header = ["method", "setting", "spp", "seeds", "time", "compile", "RMSE", "relMSE", "FLIP"]
+    header = ["method", "setting", "spp", "seeds", "time", "compile", "RMSE", "relMSE", "FLIP", "low-freq MSE"]
     cells = []
     for r in rows:
         several = r["seeds"] > 1  # one seed: no spread to show
@@ -181,25 +182,36 @@ def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[
         time += f" {_SHORT}" if r["time"] < TIMING_FLOOR else ""
         rmse = f"{r['rmse']:.5f}" + (f" ± {r['rmse_std']:.5f}" if several else "")
         cells.append([r["method"], setting_label(r["method"], r["value"]), f"{r['spp']:.4g}", str(r["seeds"]),
-                      time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}"])
+                      time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}",
+                      f"{r.get('lowfreq', math.nan):.3e}"])
     return header, cells
 
 def report_paths(out_dir: str | os.PathLike) -> dict[str, Path]:
-    """The files :func:`write_report` writes into ``out_dir``, by role."""
+    """The files :func:`write_report` writes into ``out_dir``, by role (``spectrum_plot`` only with spectra)."""
     out = Path(out_dir)
     return {"csv": out / "results.csv", "md": out / "results.md",
-            "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png"}
+            "time_plot": out / "error_vs_time.png", "spp_plot": out / "error_vs_spp.png",
+            "spectrum_plot": out / "error_spectrum.png"}
 
 
 def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: str,
-                 reference: str, title: str | None = None, notes: Sequence[str] = ()) -> dict[str, Path]:
-    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``.
+                 reference: str, title: str | None = None, notes: Sequence[str] = (),
+                 spectra: Mapping[str, Any] | None = None) -> dict[str, Path]:
+    """Write results.csv, results.md, error_vs_time.png and error_vs_spp.png into ``out_dir``, and
+    with ``spectra`` error_spectrum.png.
 
     ``notes`` (one line each, e.g. why FLIP is NaN) are listed under the table's caption.
+    ``spectra``: the radially averaged power spectrum of each render's luminance error
+    (:class:`pointillist.imaging.spectrum.RadialSpectrum`) by ``record.exr``, as
+    :func:`pointillist.compare.run_sweep` collects them: the spectrum plot shows their mean
+    over seeds, one panel per spp.
     """
     from pointillist.imaging.io import atomic_write
 
     paths = report_paths(out_dir)
+    if spectra is None:
+        del paths["spectrum_plot"]
+
     def write_csv(tmp: str) -> None:
         with open(tmp, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
@@ -220,7 +232,10 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     lines = [f"# {title or 'Sampler comparison'}", "",
              f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
-             "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP.", "",
+             "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP; low-freq MSE is the part of the "
+             "luminance error's mean square at spatial frequencies up to a quarter of Nyquist (1/8 cycle "
+             "per pixel): white-noise error keeps about 5 % of its mean square there, blue-noise error "
+             "less.", "",
              *[f"- {note}" for note in notes], *([""] if notes else []),
              "| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
     lines += ["| " + " | ".join(row) + " |" for row in cells]
@@ -272,7 +287,80 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
 
     _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
     _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])
+    if spectra is not None:
+        _plot_spectra(records, spectra, paths["spectrum_plot"])
     return paths
+
+
+def mean_spectra(records: Sequence[Any], spectra: Mapping[str, Any]) -> dict[tuple[str, float], tuple]:
+    """Per (method, value): ``(spectrum, mean spp, mean lowfreq)`` over the seeds of the records whose
+    spectrum ``spectra`` holds (by ``record.exr``), ``spectrum`` a
+    :class:`pointillist.imaging.spectrum.RadialSpectrum` whose power is the seeds' mean."""
+    from pointillist.imaging.spectrum import RadialSpectrum
+
+    groups: dict[tuple[str, float], list[Any]] = {}
+    for record in records:
+        if record.exr in spectra:
+            groups.setdefault((record.method, float(record.value)), []).append(record)
+    result = {}
+    for key, group in groups.items():
+        found = [spectra[r.exr] for r in group]
+        mean = RadialSpectrum(frequency=found[0].frequency, power=np.mean([s.power for s in found], axis=0),
+                              count=found[0].count)
+        result[key] = (mean, float(np.mean([r.spp for r in group])), float(np.mean([r.lowfreq for r in group])))
+    return result
+
+
+def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path) -> None:
+    """Radially averaged power spectra of the error images: a panel per spp, a curve per method."""
+    from pointillist.imaging.io import save_figure
+    from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, log_binned
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = mean_spectra(records, spectra)
+    panels = sorted({value for (method, value) in curves if _sweeps_spp(method)}) or \
+        sorted({round(spp) for (_, spp, _) in curves.values()})
+    columns = min(max(len(panels), 1), 3)
+    rows_n = max(math.ceil(len(panels) / columns), 1)
+    fig, axes = plt.subplots(rows_n, columns, figsize=(4.4 * columns, 3.6 * rows_n), dpi=110, squeeze=False)
+    methods = list(dict.fromkeys(r.method for r in records))
+    for index, panel in enumerate(panels):
+        ax = axes.flat[index]
+        for (method, value), (spectrum, spp, lowfreq) in curves.items():
+            near = value if _sweeps_spp(method) else min(panels, key=lambda p: abs(math.log(max(spp, 1e-9) / p)))
+            if near != panel:
+                continue
+            merged = log_binned(spectrum)  # rings merged into 12 bins a decade: the low rings are few frequencies
+            frequency, power = merged.frequency, merged.power
+            ok = (frequency > 0) & np.isfinite(power) & (power > 0)
+            label = f"{method}" + ("" if _sweeps_spp(method) else f" {setting_label(method, value)}") + \
+                f" (low-freq {lowfreq:.2e})"
+            if ok.any():
+                ax.plot(frequency[ok], power[ok], color=f"C{methods.index(method) % 10}", linewidth=1.2,
+                        label=label)
+        ax.set_title(f"{panel:g} spp", fontsize=10)
+        ax.set_xlabel("frequency (cycles per pixel)")
+        ax.set_ylabel("power of the luminance error")
+        if ax.lines:  # log axes only for positive data (an error-free render, e.g. a black scene, has none)
+            lowest = min(float(line.get_xdata().min()) for line in ax.lines)
+            ax.axvspan(lowest, LOW_FREQUENCY_CUTOFF, color="grey", alpha=0.12, linewidth=0)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlim(right=0.5)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+        else:
+            ax.text(0.5, 0.5, "no spectrum with power > 0", transform=ax.transAxes, ha="center")
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    fig.suptitle("Error spectra (radial mean of the periodogram, 12 bins a decade; shaded: up to 1/4 of Nyquist)",
+                 fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path)
 
 def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
     from pointillist.imaging.io import save_figure

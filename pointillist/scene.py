@@ -13,10 +13,9 @@ from pointillist import signals
 from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
-__all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "load_scene", "check_scene_file",
-           "resolving_from",
-           "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info",
-           "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
+__all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
+           "check_scene_file", "resolving_from", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
+           "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -142,8 +141,19 @@ def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
     if not isinstance(scene, mi.Scene):
         raise UsageError(f"scene {parsed.path}: expected a <scene> root element, got {type(scene).__name__}")
     check_sensor(scene, parsed.path)
+    attach_films(scene)
     signals.check()
     return scene
+
+
+def attach_films(scene) -> None:
+    """Give each sensor's sampler that lays samples out over the film (``zsobol``: its
+    ``attach_film`` method) the sensor's film: a Mitsuba sampler is built before, and apart
+    from, the film whose pixels it samples."""
+    for sensor in scene.sensors():
+        attach = getattr(sensor.sampler(), "attach_film", None)
+        if attach is not None:
+            attach(sensor.film())
 
 
 def load_scene(path: str | Path, params: dict[str, str] | None = None):
@@ -228,14 +238,21 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
     Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
     time of every JIT kernel launched by this render). Raises UsageError before
     rendering for a film without pixels or more than :data:`MAX_SAMPLES` samples
-    (:func:`check_sample_count`).
+    (:func:`check_sample_count`), or what the sampler's ``check_render(spp)`` refuses.
     """
     import drjit as dr
     import mitsuba as mi
 
     sensor_obj = scene.sensors()[sensor]
     width, height = (int(v) for v in sensor_obj.film().crop_size())
-    check_sample_count(width, height, int(spp) if spp else int(sensor_obj.sampler().sample_count()))
+    count = int(spp) if spp else int(sensor_obj.sampler().sample_count())
+    check_sample_count(width, height, count)
+    check = getattr(sensor_obj.sampler(), "check_render", None)  # a sampler's own limits (zsobol's Morton index)
+    if check is not None:
+        try:
+            check(count)
+        except ValueError as error:
+            raise UsageError(str(error)) from None
     signals.check()  # a safe point: nothing rendered yet
 
     dr.sync_thread()

@@ -57,6 +57,8 @@ def test_configure_scene_integrator_method_and_errors():
 def test_resolve_methods():
     assert [m.name for m in resolve_methods("grid, jitter,random,poisson,stratified,grid")] == [
         "grid", "jitter", "random", "poisson", "stratified"]
+    assert [(m.name, m.plugin, m.kind) for m in resolve_methods("sobol,zsobol")] == [
+        ("sobol", "sobol", "sampler"), ("zsobol", "zsobol", "sampler")]
     with pytest.raises(UsageError, match="unknown sampler 'nope'"):
         resolve_methods("grid,nope")
     with pytest.raises(UsageError):
@@ -276,6 +278,31 @@ def test_render_one_writes_and_reuses(mi, tmp_path):
     assert rounded.spp == 9
 
 
+@pytest.mark.slow  # ~11 s on a loaded machine: a reference and 4 renders (and their warm-ups)
+def test_compare_sobol_and_zsobol_with_the_error_spectrum(mi, tmp_path):
+    """compare sweeps sobol and zsobol by name; every render gets its low-frequency error (results.csv, the
+    table) and the spectrum plot is written; zsobol's renders carry what it rounded the count to."""
+    from pointillist.compare import compare_scene
+    from pointillist.imaging.io import read_exr
+    from pointillist.imaging.metrics import luminance_error
+    from pointillist.imaging.spectrum import low_frequency_energy
+
+    with pytest.warns(RuntimeWarning, match="zsobol sampler: sample_count 6 is not a power of two; using 8"):
+        result = compare_scene(EDGES, methods="sobol,zsobol", spp=[1, 6], reference_spp=16, out_dir=tmp_path,
+                               params={"res": "16"}, progress=False, report=False)
+    assert {(r.method, r.spp) for r in result.records} == {("sobol", 1), ("sobol", 6), ("zsobol", 1), ("zsobol", 8)}
+    assert result.paths["spectrum_plot"] == tmp_path / "error_spectrum.png"
+    assert result.paths["spectrum_plot"].stat().st_size > 10_000
+    reference = read_exr(result.reference).image
+    with open(result.paths["csv"]) as handle:
+        rows = list(csv.DictReader(handle))
+    for row in rows:  # the luminance error's energy below a quarter of Nyquist, recomputed from the files
+        image = read_exr(tmp_path / row["exr"]).image
+        expected = low_frequency_energy(luminance_error(image, reference))
+        assert float(row["lowfreq"]) == pytest.approx(expected, rel=1e-9) and expected > 0
+    assert "| low-freq MSE |" in result.paths["md"].read_text()
+
+
 def test_render_one_is_picklable():
     import pickle
 
@@ -287,8 +314,8 @@ def test_render_one_is_picklable():
 
 # ----------------------------------------------------------------------- stored scores
 def test_run_sweep_keeps_scores_with_each_render(mi, tmp_path, monkeypatch):
-    """A render's scores (its record) and seed-0 maps (renders/<task>.maps.npz) are stored with the key of
-    the render file and the reference: a rerun scores nothing again; a new reference, a render written
+    """A render's scores (its record), error spectrum and seed-0 maps (renders/<task>.maps.npz) are stored
+    with the key of the render file and the reference: a rerun scores nothing again; a new reference, a render written
     again, a lost or damaged maps file or a new scores version is scored again, and only that."""
     import json
     import os
@@ -322,9 +349,13 @@ def test_run_sweep_keeps_scores_with_each_render(mi, tmp_path, monkeypatch):
         exr = tmp_path / "renders" / record.exr
         stored = json.loads(exr.with_suffix(".json").read_text())
         expected = real(read_exr(exr).image, ref_image)
-        assert {k: stored[k] for k in ("rmse", "relmse", "flip")} == pytest.approx(expected, rel=1e-12)
+        assert set(expected) == {"rmse", "relmse", "flip", "lowfreq"}
+        assert {k: stored[k] for k in expected} == pytest.approx(expected, rel=1e-12)
         assert stored["scores_key"] == compare.scores_key(exr, compare.image_digest(ref_image)) == record.scores_key
-        assert compare.maps_path(exr).is_file() == (record.seed == 0)
+        with np.load(compare.maps_path(exr)) as kept:  # every render's spectrum, a seed-0 render's maps
+            spectrum = metrics.error_spectrum(read_exr(exr).image, ref_image)
+            assert np.array_equal(kept["spectrum_power"], spectrum.power, equal_nan=True)
+            assert ("flip" in kept and "relmse" in kept) == (record.seed == 0)
     # a rerun: every score and map from the folder, the same values; nothing written
     stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "renders").rglob("*.*")}
     again, maps_again = sweep()
@@ -374,7 +405,7 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
     done = cli(*args)
     assert done.returncode == 0, done.stderr
     assert "24 renders (24 new, 0 reused)" in done.stdout
-    for name in ("results.csv", "results.md", "error_vs_time.png", "error_vs_spp.png"):
+    for name in ("results.csv", "results.md", "error_vs_time.png", "error_vs_spp.png", "error_spectrum.png"):
         assert (out / name).stat().st_size > 0
     with open(out / "results.csv") as handle:
         rows = list(csv.DictReader(handle))

@@ -112,6 +112,13 @@ def check_page(result: dict, lines: list[str], data: dict) -> None:
     # a click on a plot point shows that very render
     assert result["click"]["mode"] == "time" and result["click"]["shown"]
     assert set(result["click"]["shown"]) == {result["click"]["point"]}
+    # the error spectrum beside the maps: one curve per render on show, every positive power of its spectrum drawn
+    assert [c["render"] for c in result["spectrum"]] == result["spectrum_columns"]
+    for curve in result["spectrum"]:
+        powers = data["renders"][curve["render"]]["spectrum"]
+        positive = [p for p, f in zip(powers, data["spectrum"]["frequency"]) if p is not None and p > 0 and f > 0]
+        assert curve["points"] == len(positive) > 0
+    assert result["click"]["point"] in result["click"]["spectrum"]  # the clicked render's spectrum is on show
     assert result["plots"] == [{"axis": "time", "points": len(data["points"])},
                                {"axis": "spp", "points": len(data["points"])}]
 
@@ -161,6 +168,35 @@ def test_report_leaves_short_renders_out_of_time_slopes_and_rankings(tmp_path):
     text = (tmp_path / "results.md").read_text()
     assert text.count("Left out: every render took under 20.0 ms") == 2
     assert "which leaves nothing to rank" in text
+
+
+def test_spectrum_plot_averages_seeds_and_places_other_sweeps_at_their_spp(tmp_path):
+    """error_spectrum.png: per (method, value) the seeds' mean spectrum, a panel per spp; adaptive (a threshold
+    sweep) joins the panel of its mean spp."""
+    from pointillist.compare_report import mean_spectra
+    from pointillist.imaging.spectrum import RadialSpectrum
+
+    frequency, count = np.array([0.0, 0.25, 0.5]), np.array([1, 4, 3])
+    records = [fake_record("jitter", 4, 0.03, 0.1, exr=f"j{seed}.exr", seed=seed) for seed in (0, 1)]
+    records += [fake_record("adaptive", 32, 0.03, 0.1, exr="a.exr", spp=3.5)]
+    for record, lowfreq in zip(records, (1e-3, 3e-3, 5e-3)):
+        record.lowfreq = lowfreq
+    spectra = {"j0.exr": RadialSpectrum(frequency, np.array([1.0, 2.0, 4.0]), count),
+               "j1.exr": RadialSpectrum(frequency, np.array([3.0, 4.0, 8.0]), count),
+               "a.exr": RadialSpectrum(frequency, np.array([1.0, 1.0, 1.0]), count),
+               "other.exr": RadialSpectrum(frequency, np.zeros(3), count)}
+    means = mean_spectra(records, spectra)
+    assert set(means) == {("jitter", 4.0), ("adaptive", 32.0)}
+    spectrum, spp, lowfreq = means[("jitter", 4.0)]
+    assert spectrum.power.tolist() == [2.0, 3.0, 6.0] and spp == 4 and lowfreq == pytest.approx(2e-3)
+    paths = write_report(records, tmp_path, scene="s.xml", reference="r.exr", spectra=spectra)
+    assert paths["spectrum_plot"].stat().st_size > 10_000
+    (tmp_path / "none").mkdir()
+    assert "spectrum_plot" not in write_report(records, tmp_path / "none", scene="s.xml", reference="r.exr")
+    # renders equal to the reference (a black scene): no power to put on log axes, and no error either
+    # (matplotlib refused to log-scale the empty panels: compare exited 2 on tests/test_hostile.py's black scene)
+    black = {key: RadialSpectrum(frequency, np.zeros(3), count) for key in spectra}
+    assert write_report(records, tmp_path, scene="s.xml", reference="r.exr", spectra=black)["spectrum_plot"].is_file()
 
 
 def test_run_sweep_logs_one_line_per_render_off_a_terminal(tmp_path, capsys):
@@ -282,6 +318,15 @@ def test_html_report_holds_the_renders_maps_and_counts_subsampled(tmp_path):
         np.testing.assert_allclose(half(entry["rgb"]).reshape(3, 4, 3), image[1::2, 1::2], rtol=1e-3, atol=1e-4)
         np.testing.assert_allclose(half(entry["relmse_map"]).reshape(3, 4), maps["relmse"][1::2, 1::2], rtol=2e-3)
         np.testing.assert_allclose(half(entry["flip_map"]).reshape(3, 4), maps["flip"][1::2, 1::2], atol=1e-3)
+    # the error spectrum of each render: the radial power spectrum of its full-size luminance error (4 digits)
+    from pointillist.imaging.metrics import error_spectrum
+
+    spectrum = error_spectrum(images[("jitter", 4.0)], ref.astype(np.float32))
+    assert data["spectrum"]["frequency"] == spectrum.frequency.tolist() == [0, 1 / 9, 2 / 9, 3 / 9, 4 / 9]
+    assert data["spectrum"]["cutoff"] == 0.125 and data["spectrum"]["nyquist"] == 0.5
+    np.testing.assert_allclose(by_key[("jitter", 4.0)]["spectrum"], spectrum.power, rtol=1e-3)
+    assert by_key[("jitter", 4.0)]["lowfreq"] == pytest.approx(records[1].lowfreq)
+    assert [p["lowfreq"] for p in data["points"]] == pytest.approx([r.lowfreq for r in records])
     # maps passed in (the sweep's own, computed while scoring) are used as they are
     given = {records[0].exr: {"relmse": np.full((7, 9), 0.25, np.float32), "flip": np.full((7, 9), 0.5, np.float32)}}
     used = page_data(write_html_report(records, tmp_path, scene="s.xml", reference=reference, maps=given).path)

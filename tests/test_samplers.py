@@ -1,4 +1,5 @@
-"""Tests of the grid, jitter and poisson samplers (plugins/samplers/)."""
+"""Tests of the grid, jitter and poisson samplers (plugins/samplers/), and of what every pointillist sampler
+shares with them (sobol and zsobol: tests/test_sobol.py)."""
 
 from __future__ import annotations
 
@@ -158,7 +159,8 @@ def test_set_sample_count_reconfigures(mi):
 
 
 # ------------------------------------------------------- determinism and other dimensions
-@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
+@pytest.mark.filterwarnings("ignore:zsobol sampler")  # no film here: rows of a power of two assumed
+@pytest.mark.parametrize("name", ["grid", "jitter", "poisson", "sobol", "zsobol"])
 def test_determinism_and_seeds(mi, name):
     a, sa = _first_2d(mi, name, 16, pixels=8, seed=7)
     b, sb = _first_2d(mi, name, 16, pixels=8, seed=7)
@@ -177,16 +179,18 @@ def test_determinism_and_seeds(mi, name):
     np.testing.assert_array_equal(_rest(sd), ra)
 
 
-@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
+@pytest.mark.parametrize("name", ["grid", "jitter", "poisson", "sobol"])
 def test_pixel_sample_reproducible_on_its_own(mi, name):
-    """(pixel, sample) gives the same numbers whatever the wavefront size."""
+    """(pixel, sample) gives the same numbers whatever the wavefront size (zsobol: whatever the crop
+    window, tests/test_sobol.py)."""
     small, s_small = _first_2d(mi, name, 4, pixels=3, seed=11)
     large, s_large = _first_2d(mi, name, 4, pixels=10, seed=11)
     np.testing.assert_array_equal(small, large[:3])
     np.testing.assert_array_equal(_rest(s_small), _rest(s_large)[:, :12])
 
 
-@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
+@pytest.mark.filterwarnings("ignore:zsobol sampler")
+@pytest.mark.parametrize("name", ["grid", "jitter", "poisson", "sobol", "zsobol"])
 def test_other_dimensions_uniform_and_decorrelated(mi, name):
     pts, sampler = _first_2d(mi, name, 16, pixels=2000, seed=5)
     one = np.asarray(sampler.next_1d())
@@ -215,15 +219,26 @@ def test_bad_sample_count(mi):
         mi.load_dict({"type": "jitter", "sample_count": 0})
 
 
-@pytest.mark.parametrize("name", ["grid", "jitter", "poisson"])
-@pytest.mark.parametrize("key,value,error,message", [
+_BAD_PROPERTIES = [
     ("sample_count", "abc", TypeError, "sample_count: expected an integer, got str"),
     ("sample_count", 2.5, TypeError, "sample_count: expected an integer, got float"),
     ("sample_count", -1, ValueError, "sample_count: expected an integer in 1..16777216, got -1"),
     ("sample_count", 0, ValueError, "sample_count: expected an integer in 1..16777216, got 0"),
     ("seed", "7", TypeError, "seed: expected an integer, got str"),
     ("seed", 1.5, TypeError, "seed: expected an integer, got float"),
-])
+]
+_BAD_RANDOMIZATION = [  # sobol and zsobol only
+    ("randomization", "fast", ValueError, "randomization: expected one of owen, none, got 'fast'"),
+    ("randomization", 3, TypeError, "randomization: expected a string, got int"),
+]
+
+
+_ALL_SAMPLERS = ("grid", "jitter", "poisson", "sobol", "zsobol")
+
+
+@pytest.mark.parametrize("name,key,value,error,message",
+                         [(n, *case) for n in _ALL_SAMPLERS for case in _BAD_PROPERTIES]
+                         + [(n, *case) for n in ("sobol", "zsobol") for case in _BAD_RANDOMIZATION])
 def test_bad_properties_name_the_property(mi, name, key, value, error, message):
     # read through the shared property readers (plugins/properties.py) before Mitsuba coerces them
     cls = importlib.import_module(f"pointillist.plugins.samplers.{name}").PLUGIN_CLASS
@@ -236,10 +251,11 @@ def test_bad_properties_name_the_property(mi, name, key, value, error, message):
 
 
 def test_set_sample_count_checks_its_argument(mi):
-    sampler = mi.load_dict({"type": "grid", "sample_count": 4})
-    for bad in (0, -3, 2.0, "8", True):
-        with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
-            sampler.set_sample_count(bad)
+    for name in ("sobol", "zsobol", "grid"):
+        sampler = mi.load_dict({"type": name, "sample_count": 4})
+        for bad in (0, -3, 2.0, "8", True):
+            with pytest.raises(ValueError, match="sample_count: expected an integer in 1.."):
+                sampler.set_sample_count(bad)
     sampler.set_sample_count(np.int64(9))
     assert sampler.sample_count() == 9 and (sampler.rows, sampler.cols) == (3, 3)
 
@@ -266,7 +282,7 @@ def test_unbiased_in_renders(mi, integrator):
 
     assert integrator in ("path", "direct") or integrator in plugins.registered()  # ours must be registered
     reference = np.asarray(mi.render(_box(mi, "independent", 1024, integrator), seed=99))
-    for name in ("grid", "jitter", "poisson"):
+    for name in ("grid", "jitter", "poisson", "sobol", "zsobol"):
         scene = _box(mi, name, 64, integrator)
         image = np.mean([np.asarray(mi.render(scene, seed=s)) for s in (1, 2)], axis=0)
         assert np.isfinite(image).all()
@@ -300,7 +316,7 @@ def test_edges_scene_renders_with_each_sampler(mi):
 
     scene_path = Path(__file__).resolve().parent.parent / "scenes" / "edges.xml"
     means = {}
-    for name in ("grid", "jitter", "poisson", "independent"):
+    for name in ("grid", "jitter", "poisson", "sobol", "zsobol", "independent"):
         scene = mi.load_file(str(scene_path), sampler=name, spp="16", res="32")
         means[name] = float(np.asarray(mi.render(scene)).mean())
     assert all(abs(m / means["independent"] - 1) < 0.05 for m in means.values()), means

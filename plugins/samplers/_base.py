@@ -40,7 +40,7 @@ import mitsuba as mi
 from pointillist.plugins.properties import integer_property
 
 __all__ = ["PatternSampler", "GridLayout", "unit_float", "grid_shape", "TEA_ROUNDS", "PIXEL_OFFSET_TAG",
-           "MAX_GRID_ASPECT", "MAX_SAMPLE_COUNT"]
+           "MAX_GRID_ASPECT", "MAX_SAMPLE_COUNT", "read_count_and_seed", "checked_sample_count", "wavefront_lanes"]
 
 #: Rounds of the Tiny Encryption Algorithm per hash: 4, Mitsuba's own default for
 #: ``sample_tea_32`` (Zafar, Olano, Curtis, "GPU random numbers via the tiny
@@ -79,6 +79,34 @@ def unit_float(bits):
     return mi.Float(bits >> 8) * (1.0 / 16777216.0)
 
 
+def read_count_and_seed(props: mi.Properties) -> int:
+    """Check ``sample_count`` and ``seed`` before Mitsuba's own reader sees them (it would wrap or coerce a
+    bad value); returns the seed offset."""
+    integer_property(props, "sample_count", 4, 1, MAX_SAMPLE_COUNT)
+    return integer_property(props, "seed", 0, *_SEED_RANGE)
+
+
+def checked_sample_count(spp) -> int:
+    """``spp`` as an int for ``set_sample_count``; ValueError unless an integer in 1..MAX_SAMPLE_COUNT."""
+    if isinstance(spp, bool) or not isinstance(spp, numbers.Integral) or not 1 <= spp <= MAX_SAMPLE_COUNT:
+        raise ValueError(f"sample_count: expected an integer in 1..{MAX_SAMPLE_COUNT}, got {spp!r}")
+    return int(spp)
+
+
+def wavefront_lanes(sampler: mi.Sampler, seed, base_seed: int):
+    """``(seed_value, pixel, sample)`` of a seeded sampler's lanes, ``lane = pixel * spp + sample``
+    (Mitsuba's single-pass wavefront): the seed plus ``base_seed`` as an opaque ``UInt32`` (a new
+    seed recompiles nothing), and each lane's pixel and sample index."""
+    size = int(sampler.wavefront_size())
+    spp = int(sampler.sample_count())
+    seed_value = mi.UInt32(seed) + mi.UInt32(base_seed & 0xFFFFFFFF)
+    dr.make_opaque(seed_value)
+    lane = dr.arange(mi.UInt32, size)
+    spp_opaque = dr.opaque(mi.UInt32, spp)
+    pixel = lane // spp_opaque
+    return seed_value, pixel, lane - pixel * spp_opaque
+
+
 def grid_shape(spp: int) -> tuple[int, int]:
     """The rectangular grid ``(rows, cols)`` with ``rows * cols == spp`` closest to square.
 
@@ -103,9 +131,7 @@ class PatternSampler(mi.Sampler):
     """Base class: an image-plane pattern at dimension 0, hashed random numbers elsewhere."""
 
     def __init__(self, props: mi.Properties):
-        # Checked before Mitsuba's own reader sees them (it would wrap or coerce a bad value).
-        integer_property(props, "sample_count", 4, 1, MAX_SAMPLE_COUNT)
-        self._base_seed = integer_property(props, "seed", 0, *_SEED_RANGE)
+        self._base_seed = read_count_and_seed(props)
         super().__init__(props)
         spp = int(self.sample_count())
         self._configure(spp)
@@ -121,14 +147,7 @@ class PatternSampler(mi.Sampler):
 
     def seed(self, seed=0, wavefront_size: int = 2**32 - 1) -> None:
         super().seed(seed, wavefront_size)
-        size = int(self.wavefront_size())
-        spp = int(self.sample_count())
-        seed_value = mi.UInt32(seed) + mi.UInt32(self._base_seed & 0xFFFFFFFF)
-        dr.make_opaque(seed_value)
-        lane = dr.arange(mi.UInt32, size)
-        spp_opaque = dr.opaque(mi.UInt32, spp)
-        pixel = lane // spp_opaque
-        sample = lane - pixel * spp_opaque
+        seed_value, pixel, sample = wavefront_lanes(self, seed, self._base_seed)
         self.m_pixel_key = mi.sample_tea_32(seed_value, pixel, TEA_ROUNDS)[0]
         self.m_sample_key = mi.sample_tea_32(self.m_pixel_key, sample, TEA_ROUNDS)[0]
         self.m_sample = sample
@@ -146,9 +165,7 @@ class PatternSampler(mi.Sampler):
         dr.schedule(self.m_pixel_key, self.m_sample_key, self.m_sample, self.m_dim)
 
     def set_sample_count(self, spp: int) -> None:
-        if isinstance(spp, bool) or not isinstance(spp, numbers.Integral) or not 1 <= spp <= MAX_SAMPLE_COUNT:
-            raise ValueError(f"sample_count: expected an integer in 1..{MAX_SAMPLE_COUNT}, got {spp!r}")
-        spp = int(spp)
+        spp = checked_sample_count(spp)
         super().set_sample_count(spp)
         self._configure(spp)
 

@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
-                        help="comma-separated samplers: grid, jitter, random, poisson, and Mitsuba's "
+                        help="comma-separated samplers: grid, jitter, random, poisson, sobol (Owen-scrambled "
+                             "Sobol'), zsobol (pbrt-v4's Morton-ordered Sobol': blue-noise error), and Mitsuba's "
                              "independent, stratified, multijitter, orthogonal, ldsampler; or adaptive "
                              "(adaptive super-sampling around the scene's integrator, sweeping its threshold "
                              "instead of --spp) (default "
@@ -85,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
                            log=lambda line: print(line, flush=True))
     records, paths = result.records, result.paths
     print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
-    print(f"wrote {paths['csv']}, {paths['md']}, {paths['time_plot']}, {paths['spp_plot']}")
+    print("wrote " + ", ".join(str(paths[k]) for k in ("csv", "md", "time_plot", "spp_plot", "spectrum_plot")
+                               if k in paths))
     if "html" in paths:
         print(f"report: {paths['html']} ({result.notes[-1]})")  # the page's summary; the other notes were logged
     return 0

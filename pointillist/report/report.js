@@ -3,8 +3,9 @@
  * Plain browser JavaScript, no dependencies and no build step. It reads
  * the element #report-data (JSON): renders as base64 float16 (RGB, then relMSE, FLIP and
  * sample-count maps), colour tables and the sweep's points; draws the two log-log
- * plots as SVG and the image viewer as canvases that share one view (zoom, pan),
- * applying exposure and the sRGB transfer function to the HDR data here.
+ * plots as SVG, the image viewer as canvases that share one view (zoom, pan),
+ * applying exposure and the sRGB transfer function to the HDR data here, and the
+ * error spectra of the renders on show (SVG, log-log).
  * (No closing-tag sequence may appear in this file: it is inlined into the page.)
  * With "#selftest" in the URL it runs scripted interactions after loading and writes
  * their results as JSON into a new element #selftest-result (tests/test_compare_html.py).
@@ -261,6 +262,65 @@
     clampView();
     drawAll();
     buildScales(kinds);
+    buildSpectrum(columns.filter(function (c) { return c !== "reference"; }));
+  }
+
+  // ------------------------------------------------------------------ error spectra
+  var spectrumShown = [];
+
+  function buildSpectrum(columns) {  // radial power spectra of the shown renders' luminance errors
+    var box = document.getElementById("spectrum"), S = D.spectrum;
+    var w = 520, h = 300, left = 62, right = 22, top = 12, bottom = 44;
+    box.innerHTML = "";
+    spectrumShown = [];
+    var root = svg("svg", { width: w, height: h, viewBox: "0 0 " + w + " " + h, role: "img" }, box);
+    var curves = columns.map(function (c) {
+      var r = D.renders[c], pts = [];
+      r.spectrum.forEach(function (p, i) { if (p > 0 && S.frequency[i] > 0) pts.push([S.frequency[i], p]); });
+      return { render: r, pts: pts };
+    }).filter(function (c) { return c.pts.length > 0; });
+    if (!curves.length) {
+      svg("text", { x: w / 2, y: h / 2, "text-anchor": "middle" }, root).textContent = "no error spectrum to plot";
+      return;
+    }
+    var fs = [], ps = [];
+    curves.forEach(function (c) { c.pts.forEach(function (q) { fs.push(q[0]); ps.push(q[1]); }); });
+    var xr = [Math.log10(Math.min.apply(null, fs)), Math.log10(S.nyquist)], yr = decades(ps);
+    function X(v) { return left + (Math.log10(v) - xr[0]) / (xr[1] - xr[0]) * (w - left - right); }
+    function Y(v) { return top + (yr[1] - Math.log10(v)) / (yr[1] - yr[0]) * (h - top - bottom); }
+    svg("rect", { x: left, y: top, width: Math.max(0, X(S.cutoff) - left), height: h - top - bottom,
+      "class": "short" }, root);
+    for (var ky = yr[0]; ky <= yr[1]; ky++) {
+      svg("line", { x1: left, x2: w - right, y1: Y(Math.pow(10, ky)), y2: Y(Math.pow(10, ky)), "class": "grid" }, root);
+      svg("text", { x: left - 5, y: Y(Math.pow(10, ky)) + 4, "text-anchor": "end" }, root).textContent = "1e" + ky;
+    }
+    [0.01, 0.02, 0.05, 0.1, 0.2, 0.5].forEach(function (f) {
+      if (Math.log10(f) < xr[0]) return;
+      svg("line", { x1: X(f), x2: X(f), y1: top, y2: h - bottom, "class": "grid" }, root);
+      svg("text", { x: X(f), y: h - bottom + 15, "text-anchor": "middle" }, root).textContent = String(f);
+    });
+    svg("line", { x1: left, x2: left, y1: top, y2: h - bottom, "class": "axis" }, root);
+    svg("line", { x1: left, x2: w - right, y1: h - bottom, y2: h - bottom, "class": "axis" }, root);
+    svg("text", { x: (left + w - right) / 2, y: h - 8, "text-anchor": "middle" }, root).textContent =
+      "frequency (cycles per pixel; Nyquist 0.5)";
+    svg("text", { x: 14, y: (top + h - bottom) / 2, "text-anchor": "middle",
+      transform: "rotate(-90 14 " + (top + h - bottom) / 2 + ")" }, root).textContent = "power of the luminance error";
+    var legend = document.createElement("div");
+    legend.className = "legend";
+    curves.forEach(function (c) {
+      var line = svg("polyline", { points: c.pts.map(function (q) { return X(q[0]) + "," + Y(q[1]); }).join(" "),
+        fill: "none", stroke: colourOf[c.render.method], "stroke-width": 1.5, "class": "spectrum-curve" }, root);
+      line.dataset.render = String(c.render.id);
+      svg("title", {}, line).textContent = c.render.method + " " + c.render.setting;
+      spectrumShown.push({ render: c.render.id, points: c.pts.length });
+      var item = document.createElement("span"), sw = document.createElement("span");
+      sw.className = "swatch"; sw.style.background = colourOf[c.render.method];
+      item.appendChild(sw);
+      item.appendChild(document.createTextNode(c.render.method + " " + c.render.setting + " (low-freq " +
+        fmtNum(c.render.lowfreq) + ")"));
+      legend.appendChild(item);
+    });
+    box.appendChild(legend);
   }
 
   function maxZoom() { return Math.max(8, 64 / fit); }  // to 64 screen pixels per image pixel (8x at least)
@@ -402,7 +462,7 @@
 
   // ------------------------------------------------------------------ plots
   var tooltip = document.getElementById("tooltip");
-  var metricNames = { mse: "MSE", relmse: "relMSE", flip: "HDR-FLIP" };
+  var metricNames = { mse: "MSE", relmse: "relMSE", flip: "HDR-FLIP", lowfreq: "low-freq MSE" };
 
   function svg(tag, attrs, parent) {
     var el = document.createElementNS(SVGNS, tag);
@@ -572,6 +632,9 @@
       buildViewer();
       result.initial = panes.map(paneInfo);
       result.methods = methods;
+      result.spectrum = spectrumShown.slice();
+      result.spectrum_columns = panes.filter(function (c) { return c.dataset.kind === "rgb" && c.dataset.column !== "reference"; })
+        .map(function (c) { return +c.dataset.column; });
       // zoom: a wheel event on the first method's render pane
       var first = panes.filter(function (c) { return c.dataset.kind === "rgb" && c.dataset.column !== "reference"; })[0];
       var rect = first.getBoundingClientRect();
@@ -617,7 +680,8 @@
       var dot = dots[dots.length - 1], point = D.points[+dot.dataset.point];
       dot.dispatchEvent(new MouseEvent("click", { bubbles: true }));
       result.click = { point: point.render, method: point.method, mode: state.mode,
-        shown: panes.filter(function (c) { return c.dataset.method === point.method; }).map(function (c) { return +c.dataset.column; }) };
+        shown: panes.filter(function (c) { return c.dataset.method === point.method; }).map(function (c) { return +c.dataset.column; }),
+        spectrum: spectrumShown.map(function (c) { return c.render; }) };
       result.plots = Array.prototype.map.call(document.querySelectorAll(".plot"), function (p) {
         return { axis: p.dataset.axis, points: p.querySelectorAll(".point").length };
       });
