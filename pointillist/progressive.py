@@ -1,37 +1,56 @@
 """Progressive rendering: passes, a running error estimate without a reference, and budgets.
 
 A progressive render is a sequence of *passes*: ``mi.render(scene, spp=n_k, seed=s_k)``, each an
-independent estimate of the image (its own seed, :func:`pass_seed`). The passes are accumulated
-per pixel and channel with Welford's update in the weighted form of West (1979), weights = the
-passes' sample counts, in float64:
+independent estimate of the image (its own seed, :func:`pass_seed`). Each pass goes to one of two
+*halves* (the one with fewer samples so far; ties to the first), and each half accumulates its
+passes per pixel and channel with Welford's update in the weighted form of West (1979), weights =
+the passes' sample counts, in float64:
 
     W += n;  delta = x - mean;  mean += (n / W) * delta;  M2 += n * delta * (x - mean)
 
-With a box reconstruction filter a pass image is the plain mean of its samples in each pixel, so
-``mean`` is the mean of all ``W`` samples: statistically one render of ``W`` spp (bit for bit the
-same mean when every pass gives the same image, e.g. a deterministic estimator with a seed-free
-sampler). If a sample has variance ``sigma^2``, a pass of ``n`` spp has ``sigma^2 / n`` and
-``E[M2] = (K - 1) sigma^2`` for ``K`` passes of any sizes, so
+The whole render is the two halves combined (Chan, Golub and LeVeque 1979; exact, ``d = mean_B -
+mean_A``): ``mean = mean_A + d W_B / W`` and ``M2 = M2_A + M2_B + d^2 W_A W_B / W``. With a box
+reconstruction filter a pass image is the plain mean of its samples in each pixel, so ``mean`` is
+the mean of all ``W`` samples: statistically one render of ``W`` spp (bit for bit the same mean when
+every pass gives the same image, e.g. a deterministic estimator with a seed-free sampler). If a
+sample has variance ``sigma^2``, a pass of ``n`` spp has ``sigma^2 / n`` and ``E[M2] = (K - 1)
+sigma^2`` for ``K`` passes of any sizes, so
 
-    var_of_mean = M2 / ((K - 1) * W)          (unbiased; needs K >= 2)
+    v = var_of_mean = M2 / ((K - 1) W)          (unbiased; needs K >= 2)
 
 **Estimated relMSE** (the relMSE of :func:`pointillist.imaging.metrics.image_errors`, epsilon
-:data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the expected squared
-error of a pixel is ``var_of_mean``; its reference is unknown, and the running mean is a noisy
-stand-in whose square is biased high, ``E[mean^2] = r^2 + var``, which makes the plain
-``var / (mean^2 + eps)`` under-estimate noisy images (by up to 2-3x at a few passes of a path
-tracer). The denominator therefore subtracts the variance, but never goes below a quarter of
-``mean^2`` (where the noise exceeds the mean, ``mean^2 - var`` says nothing and would put the
-pixel at the ``eps`` floor)::
+``eps`` = :data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the
+expected squared error of a pixel is ``v``; the reference in the denominator is unknown. A pixel's
+own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/2
+(``v <= m^2 / 4``; a rare path has then been found about four times or more), with the bias of
+``m^2`` removed (``E[m^2] = r^2 + v``). An unreliable pixel is one whose mean rests on one to three
+rare, bright samples (a firefly): its own mean is then mostly the firefly and says little about
+``r`` (``m^2 - v`` is about 0 after one firefly, ``m^2`` far above ``r^2``), so it takes the
+smaller of that and the squared median ``n`` of its 3x3 neighbourhood (clamped at the border),
+which a lone firefly does not move::
 
-    estimated_relmse = mean over pixels and colour channels of
-                       var_of_mean / (max(mean^2 - var_of_mean, mean^2 / 4) + eps)
+    d = m^2 - v                     where v <= m^2 / 4
+    d = min(max(m^2 - v, 0), n^2)   elsewhere
+    estimated_relmse = mean over finite pixels and colour channels of v / (d + eps)
 
-It is reported from :data:`MIN_PASSES` passes on (before: NaN). It assumes the passes are
-independent and the estimator unbiased; it under-estimates the error of rare bright paths
-(fireflies: a pixel whose few hits all landed in one pass, or in none), of samplers whose passes
-are correlated (a seed-free ``grid`` gives identical passes: estimate 0) and of biased estimators
-(clamping, a ``max_depth`` cut-off: the bias is not in the spread).
+A firefly then raises the estimate by ``v / (n^2 + eps)``, as much as it raises the true error,
+however bright it is, and a second or third firefly in the same pixel raises it again (the
+per-pixel ``v / (m^2 / 4)``, which a reference-free estimate of ``r`` from the pixel alone gives,
+stays near 4 whatever the firefly: 100x below the truth on a path-traced glass caustic at 8-64 spp).
+Two limits: a lone bright pixel that is real (a light smaller than a pixel) is counted as a firefly
+until it has about four hits (the estimate is high, on the safe side, meanwhile), and a path that
+no pass has found yet leaves no trace in its pixel (over an image, the pixels where it was found
+stand in for those where it was not).
+
+**Trust.** The estimate is reported from :data:`MIN_PASSES` passes on (before: NaN). It is
+*trusted* when the two halves, each with at least two passes, agree: with ``e_h`` = the mean of
+``v_h W_h / (d + eps)`` (half ``h``'s error per spp, same denominators), ``max(e_A, e_B) /
+min(e_A, e_B) <= HALVES_AGREEMENT`` (:data:`HALVES_AGREEMENT`, 2). A firefly, or a rare path
+found so far by one half only, makes them disagree; an error budget stops only on a trusted
+estimate. Pixels holding NaN or inf (a NaN sample makes its pixel NaN for good) are counted
+(:attr:`PassStats.nonfinite`) and left out of the estimate. It assumes independent passes and an
+unbiased estimator: a seed-free ``grid`` sampler gives identical passes (estimate 0), and a bias
+(clamping, a ``max_depth`` cut-off) is not in the spread.
 
 :func:`render_passes` is the engine (a generator of ``(image so far, PassStats)``),
 :class:`Budget` decides the size of each pass (time, error and spp budgets, auto pass size),
@@ -59,13 +78,27 @@ from pointillist.distributed import file_digest
 from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
-__all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "pass_seed",
-           "tea32", "PassStats", "Accumulator", "Budget", "render_passes", "ProgressiveResult",
-           "render_progressive", "write_progress", "checkpoint_path", "progress_paths", "scene_fingerprint"]
+__all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "RELIABLE_VARIANCE",
+           "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed", "tea32", "PassStats", "ErrorEstimate", "Accumulator",
+           "Budget", "render_passes", "ProgressiveResult", "render_progressive", "write_progress", "checkpoint_path",
+           "progress_paths", "scene_fingerprint"]
 
 #: Passes before the first error estimate (the spread of fewer passes is too noisy to use: at 4
 #: passes the estimate was off by up to 2x on small path-traced images, at 8 within 1.8x).
 MIN_PASSES = 8
+
+#: A pixel's own mean stands for its reference where ``var_of_mean <= RELIABLE_VARIANCE * mean^2``
+#: (relative standard error at most 1/2: a rare path found about four times or more).
+RELIABLE_VARIANCE = 0.25
+
+#: An error budget stops only when the two halves' errors per spp agree within this factor
+#: (benchmarks/RESULTS.md, "The progressive error estimate on hard scenes").
+HALVES_AGREEMENT = 2.0
+
+#: Why a progressive render stopped (``stopped_by`` in the EXR header): the spp budget, the time
+#: budget, the error target (reached with a trusted estimate), Ctrl-C/SIGTERM, or ``limit``: the
+#: most samples per pixel a render may reach (2^32 - 1, for a budget that gave none).
+STOP_REASONS = ("spp", "time", "error", "interrupted", "limit")
 
 #: Auto pass size: aim at passes of about this many seconds (at most an eighth of a time budget).
 #: A pass costs tens of ms besides its samples (tracing the integrator again, film set-up, the
@@ -76,8 +109,11 @@ TARGET_PASS_SECONDS = 2.0
 #: Auto pass size: samples (pixels x spp) of the first pass, which also compiles the kernels.
 FIRST_PASS_SAMPLES = 2**18
 
-#: Format version of the checkpoint file.
-CHECKPOINT_VERSION = 1
+#: Format version of the checkpoint file (2: the two halves' Welford sums).
+CHECKPOINT_VERSION = 2
+
+#: Columns of a history row (:attr:`ProgressiveResult.history`, the progress CSV, checkpoints).
+HISTORY_COLUMNS = ("pass", "seconds", "spp", "estimated_relmse", "halves_ratio", "trusted")
 
 _U32 = 0xFFFFFFFF
 
@@ -112,14 +148,18 @@ def pass_seed(seed: int, index: int) -> int:
     return (tea32(int(seed), 0)[0] + int(index)) & _U32
 
 
+
+
 @dataclass(frozen=True)
 class PassStats:
     """Where a progressive render stands after a pass (``passes == 0``: before the first).
 
     ``seconds``: render seconds of all passes so far (rendering, JIT compilation, accumulation;
     resumed renders include the earlier ones); ``compile_seconds``: the JIT compilation part;
-    ``estimated_relmse``: NaN before :data:`MIN_PASSES` passes; ``seed``: the Mitsuba seed of
-    the last pass.
+    ``estimated_relmse``: NaN before :data:`MIN_PASSES` passes; ``halves_ratio`` and ``trusted``:
+    how far the two halves' errors agree and whether that is within :data:`HALVES_AGREEMENT`
+    (:class:`ErrorEstimate`); ``nonfinite``: pixels holding NaN or inf; ``seed``: the Mitsuba
+    seed of the last pass.
     """
 
     passes: int
@@ -133,6 +173,9 @@ class PassStats:
     width: int
     height: int
     seed: int = 0
+    halves_ratio: float = math.nan
+    trusted: bool = False
+    nonfinite: int = 0
 
     def seconds_per_spp(self) -> float:
         """Seconds one spp of the last pass took, JIT compilation left out (NaN before a pass)."""
@@ -140,12 +183,39 @@ class PassStats:
             return math.nan
         return max(self.pass_seconds - self.pass_compile_seconds, 1e-9) / self.pass_spp
 
+    @property
+    def estimate_state(self) -> str:
+        """``"none"`` (no estimate yet), ``"trusted"`` or ``"untrusted"`` (the halves disagree)."""
+        if not math.isfinite(self.estimated_relmse):
+            return "none"
+        return "trusted" if self.trusted else "untrusted"
+
+
+@dataclass(frozen=True)
+class ErrorEstimate:
+    """The error estimate of an :class:`Accumulator` (module docstring).
+
+    ``relmse``: the estimated relMSE (NaN before :data:`MIN_PASSES` passes or without a finite
+    pixel); ``halves``: the two halves' errors per spp ``(e_A, e_B)`` (NaN where a half has fewer
+    than two passes); ``halves_ratio``: ``max / min`` of those (1 when both are 0, inf when one
+    is); ``trusted``: an estimate whose halves agree within :data:`HALVES_AGREEMENT`;
+    ``nonfinite``: pixels with a NaN or inf colour value (left out).
+    """
+
+    relmse: float
+    halves: tuple[float, float]
+    halves_ratio: float
+    trusted: bool
+    nonfinite: int
+
 
 class Accumulator:
-    """Per-pixel, per-channel weighted Welford sums of pass images, in float64 (immutable).
+    """Per-pixel, per-channel weighted Welford sums of pass images in two halves, float64 (immutable).
 
-    ``mean`` and ``m2`` are Dr.Jit float64 tensors of the image's shape; ``weight`` the spp so
-    far, ``passes`` the number of passes. :meth:`add` returns a new accumulator, so a render
+    ``halves`` holds two ``(mean, m2, weight, passes)``: Dr.Jit float64 tensors of the image's
+    shape (None while empty), the half's spp and passes. Each pass goes to the half with fewer
+    samples so far. ``mean`` and ``m2`` are the whole render's (the halves combined), ``weight``
+    its spp and ``passes`` its passes. :meth:`add` returns a new accumulator, so a render
     interrupted at any point keeps a consistent one.
 
     Examples
@@ -155,14 +225,21 @@ class Accumulator:
     >>> acc = Accumulator.empty()
     >>> for x, n in [(1.0, 1), (3.0, 1), (2.0, 2)]:
     ...     acc = acc.add(mi.TensorXf(np.full((1, 1, 1), x, np.float32)), n)
-    >>> float(acc.mean.numpy()[0, 0, 0]), float(acc.variance_of_mean().numpy()[0, 0, 0])
+    >>> float(acc.mean.numpy()[0, 0, 0]), round(float(acc.variance_of_mean().numpy()[0, 0, 0]), 12)
     (2.0, 0.25)
+    >>> [(h[2], h[3]) for h in acc.halves]     # (spp, passes): 1 and 2 in one half, 3 in the other
+    [(3, 2), (1, 1)]
     """
 
-    __slots__ = ("mean", "m2", "weight", "passes")
+    __slots__ = ("halves", "weight", "passes", "_total")
 
-    def __init__(self, mean=None, m2=None, weight: int = 0, passes: int = 0):
-        self.mean, self.m2, self.weight, self.passes = mean, m2, int(weight), int(passes)
+    _EMPTY = (None, None, 0, 0)
+
+    def __init__(self, halves=None):
+        self.halves = tuple(halves) if halves is not None else (self._EMPTY, self._EMPTY)
+        self.weight = sum(int(h[2]) for h in self.halves)
+        self.passes = sum(int(h[3]) for h in self.halves)
+        self._total = None
 
     @classmethod
     def empty(cls) -> Accumulator:
@@ -173,44 +250,127 @@ class Accumulator:
         import drjit as dr
 
         x = dr.float64_array_t(type(image))(image)
-        if self.mean is None:
+        shape = self.shape
+        if shape is not None and tuple(x.shape) != shape:
+            raise ValueError(f"image: expected shape {shape}, got {tuple(x.shape)}")
+        k = 0 if self.halves[0][2] <= self.halves[1][2] else 1
+        mean, m2, weight, passes = self.halves[k]
+        if mean is None:
             mean, m2 = x, dr.zeros(type(x), x.shape)
         else:
-            if tuple(x.shape) != tuple(self.mean.shape):
-                raise ValueError(f"image: expected shape {tuple(self.mean.shape)}, got {tuple(x.shape)}")
-            weight = self.weight + spp
-            frac = dr.opaque(dr.float64_array_t(dr.array_t(x)), spp / weight)
+            frac = dr.opaque(dr.float64_array_t(dr.array_t(x)), spp / (weight + spp))
             n = dr.opaque(dr.float64_array_t(dr.array_t(x)), float(spp))
-            delta = x - self.mean
-            mean = self.mean + delta * frac
-            m2 = self.m2 + n * delta * (x - mean)
+            delta = x - mean
+            mean = mean + delta * frac
+            m2 = m2 + n * delta * (x - mean)
         dr.eval(mean, m2)
-        return Accumulator(mean, m2, self.weight + spp, self.passes + 1)
+        halves = list(self.halves)
+        halves[k] = (mean, m2, weight + spp, passes + 1)
+        return Accumulator(halves)
+
+    @property
+    def shape(self) -> tuple[int, ...] | None:
+        """The image's shape (None before the first pass)."""
+        for mean, *_ in self.halves:
+            if mean is not None:
+                return tuple(mean.shape)
+        return None
+
+    def _combined(self):
+        if self._total is None:
+            import drjit as dr
+
+            (mean_a, m2_a, w_a, _), (mean_b, m2_b, w_b, _) = self.halves
+            if mean_b is None:
+                self._total = (mean_a, m2_a)
+            else:
+                f64 = dr.float64_array_t(dr.array_t(mean_a))
+                d = mean_b - mean_a
+                mean = mean_a + d * dr.opaque(f64, w_b / (w_a + w_b))
+                m2 = m2_a + m2_b + d * d * dr.opaque(f64, w_a * w_b / (w_a + w_b))
+                dr.eval(mean, m2)
+                self._total = (mean, m2)
+        return self._total
+
+    @property
+    def mean(self):
+        """The mean of all samples, a float64 Dr.Jit tensor (None before the first pass)."""
+        return self._combined()[0]
+
+    @property
+    def m2(self):
+        """The whole render's Welford ``M2`` (the halves combined)."""
+        return self._combined()[1]
+
+    @staticmethod
+    def _variance(m2, weight: int, passes: int):
+        import drjit as dr
+
+        if passes < 2:
+            return dr.zeros(type(m2), m2.shape)
+        return m2 * dr.opaque(dr.float64_array_t(dr.array_t(m2)), 1.0 / ((passes - 1) * weight))
 
     def variance_of_mean(self):
         """``M2 / ((K - 1) W)``: the variance of each pixel's mean (zeros before two passes)."""
-        import drjit as dr
+        return self._variance(self.m2, self.weight, self.passes)
 
-        if self.passes < 2:
-            return dr.zeros(type(self.mean), self.mean.shape)
-        scale = dr.opaque(dr.float64_array_t(dr.array_t(self.mean)), 1.0 / ((self.passes - 1) * self.weight))
-        return self.m2 * scale
+    def estimate(self, channels: int = 3) -> ErrorEstimate:
+        """The relMSE estimated from the spread between passes, and whether it is trusted (module docstring).
 
-    def estimated_relmse(self, channels: int = 3) -> float:
-        """The image's relMSE estimated from the spread between passes (NaN before :data:`MIN_PASSES`).
-
-        Averaged over all pixels and the first ``channels`` channels (the colour; not AOVs).
+        Over all pixels and the first ``channels`` channels (the colour; not AOVs).
         """
         import drjit as dr
+        import mitsuba as mi
 
-        if self.passes < MIN_PASSES:
-            return math.nan
+        from pointillist.imaging.filters import median
+
+        nan = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0)
+        if self.passes == 0:
+            return nan
         mean, var = self.mean, self.variance_of_mean()
-        if mean.shape[-1] > channels:
-            mean, var = mean[..., :channels], var[..., :channels]
-        square = mean * mean
-        ratio = var / (dr.maximum(square - var, 0.25 * square) + RELMSE_EPSILON)
-        return float(dr.mean(ratio, axis=None).array[0])
+        height, width, depth = (tuple(mean.shape) + (1,))[:3]
+        c = max(min(int(channels), depth), 1)
+        halves = [(self._variance(h[1], h[2], h[3]), h[2]) for h in self.halves if h[3] >= 2]
+        if c < depth:
+            mean, var = mean[..., :c], var[..., :c]
+            halves = [(v[..., :c], w) for v, w in halves]
+        m, v = mean.array, var.array
+        finite = dr.isfinite(m) & dr.isfinite(v)
+        bad = dr.select(finite, 0.0, 1.0)          # pixels with any non-finite channel
+        pixel = dr.arange(mi.UInt32, height * width) * c
+        any_bad = dr.gather(type(bad), bad, pixel)
+        for k in range(1, c):
+            any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, pixel + k))
+        nonfinite = int(dr.sum(any_bad)[0])
+        if self.passes < MIN_PASSES or nonfinite == height * width:
+            return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, nonfinite)
+        m = dr.select(finite, m, 0.0)
+        v = dr.select(finite, v, 0.0)
+        local = median(mi.TensorXf(dr.float32_array_t(type(m))(m), (height, width, c)), 3, border="clamp")
+        n = dr.float64_array_t(type(m))(local.array)
+        square = m * m
+        own = dr.maximum(square - v, 0.0)
+        d = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
+        inverse = dr.select(finite, 1.0 / (d + RELMSE_EPSILON), 0.0)
+        count = dr.opaque(type(m), 1.0 / max(height * width * c - int(dr.count(~finite)[0]), 1))
+        sums = [dr.sum(v * inverse) * count]
+        for var_h, weight in halves:
+            sums.append(dr.sum(dr.select(finite, var_h.array, 0.0) * inverse) * count * weight)
+        dr.eval(*sums)
+        relmse = float(sums[0][0])
+        per_spp = [float(s[0]) for s in sums[1:]] + [math.nan] * (3 - len(sums))
+        e_a, e_b = per_spp
+        if not (math.isfinite(e_a) and math.isfinite(e_b)):
+            ratio = math.nan
+        elif max(e_a, e_b) == 0:
+            ratio = 1.0
+        else:
+            ratio = max(e_a, e_b) / min(e_a, e_b) if min(e_a, e_b) > 0 else math.inf
+        return ErrorEstimate(relmse, (e_a, e_b), ratio, ratio <= HALVES_AGREEMENT, nonfinite)
+
+    def estimated_relmse(self, channels: int = 3) -> float:
+        """The estimated relMSE alone (:meth:`estimate`; NaN before :data:`MIN_PASSES` passes)."""
+        return self.estimate(channels).relmse
 
     def image(self):
         """The mean so far as a float32 Dr.Jit tensor (lazy: costs nothing unless used)."""
@@ -219,9 +379,17 @@ class Accumulator:
         return mi.TensorXf(self.mean)
 
     # -- checkpoint I/O
+    #: The arrays of :meth:`to_numpy` (``a_``/``b_``: the two halves).
+    KEYS = tuple(f"{h}_{name}" for h in "ab" for name in ("mean", "m2", "weight", "passes"))
+
     def to_numpy(self) -> dict[str, Any]:
-        return {"mean": self.mean.numpy().astype(np.float64), "m2": self.m2.numpy().astype(np.float64),
-                "weight": np.int64(self.weight), "passes": np.int64(self.passes)}
+        data = {}
+        for h, (mean, m2, weight, passes) in zip("ab", self.halves):
+            empty = np.zeros(self.shape or (0,), np.float64)
+            data.update({f"{h}_mean": empty if mean is None else mean.numpy().astype(np.float64),
+                         f"{h}_m2": empty if m2 is None else m2.numpy().astype(np.float64),
+                         f"{h}_weight": np.int64(weight), f"{h}_passes": np.int64(passes)})
+        return data
 
     @classmethod
     def from_numpy(cls, data: dict[str, Any]) -> Accumulator:
@@ -229,8 +397,13 @@ class Accumulator:
         import drjit as dr
 
         t64 = dr.float64_array_t(mi.TensorXf)
-        return cls(t64(np.asarray(data["mean"], np.float64)), t64(np.asarray(data["m2"], np.float64)),
-                   int(data["weight"]), int(data["passes"]))
+        halves = []
+        for h in "ab":
+            passes = int(data[f"{h}_passes"])
+            halves.append((t64(np.asarray(data[f"{h}_mean"], np.float64)) if passes else None,
+                           t64(np.asarray(data[f"{h}_m2"], np.float64)) if passes else None,
+                           int(data[f"{h}_weight"]), passes))
+        return cls(halves)
 
 
 def _pow2_floor(n: int) -> int:
@@ -244,12 +417,17 @@ class Budget:
     Parameters
     ----------
     seconds : float, optional
-        Stop when the render seconds (:attr:`PassStats.seconds`) reach this; the last passes
-        shrink (halving their spp) to end close to it. At least one pass always runs.
+        Stop when the render seconds (:attr:`PassStats.seconds`) reach this, or when less than
+        one spp fits in the time left; the last passes shrink (halving their spp) to end close
+        to it. At least one pass always runs.
     target_error : float, optional
-        Stop when the estimated relMSE is at most this (checked from ``min_passes`` on). Auto
-        passes take 1 spp until the first estimate, then no more than the 1/spp law says is
-        still needed (rounded down to a power of two), so the render stops close to the target.
+        Stop when the estimated relMSE is at most this and trusted (checked from ``min_passes``
+        on; :class:`ErrorEstimate`). Auto passes take 1 spp until the first estimate, then no
+        more than the 1/spp law says is still needed (rounded down to a power of two), so the
+        render stops close to the target; while the estimate is not trusted, at least a quarter
+        of the spp so far. Without ``seconds`` and ``spp``, a target that a trusted estimate
+        puts beyond 2^32 - 1 spp raises a :class:`~pointillist.errors.UsageError` (it would run
+        for ever), and so does an image whose every pixel is NaN or inf (no estimate).
     spp : int, optional
         Stop at this many samples per pixel (the last pass is cut to land on it exactly).
     pass_spp : int, optional
@@ -259,10 +437,11 @@ class Budget:
     min_passes : int
         Passes before ``target_error`` is checked (at least :data:`MIN_PASSES`).
 
-    Without ``seconds``, ``target_error`` or ``spp`` the passes go on until interrupted (Ctrl-C).
-    The budget is a callable: ``budget(stats)`` is the spp of the next pass (0: stop). Auto
-    and shrunk passes are powers of two, which share one compiled kernel (a pass cut to land on
-    ``spp`` exactly may take one more compilation).
+    Without ``seconds``, ``target_error`` or ``spp`` the passes go on until interrupted (Ctrl-C),
+    or until 2^32 - 1 spp. The budget is a callable: ``budget(stats)`` is the spp of the next pass;
+    it is 0 exactly when :meth:`stop_reason` names why the render is done. Auto and shrunk passes
+    are powers of two, which share one compiled kernel (a pass cut to land on ``spp`` exactly
+    may take one more compilation).
 
     Examples
     --------
@@ -271,6 +450,8 @@ class Budget:
     >>> start = PassStats(0, 0, 0, 0.0, 0.0, 0.0, 0.0, math.nan, 8, 8)
     >>> b(start), b(replace(start, passes=2, spp=8, pass_spp=4)), b(replace(start, passes=3, spp=10))
     (4, 2, 0)
+    >>> b.stop_reason(replace(start, passes=3, spp=10))
+    'spp'
     """
 
     seconds: float | None = None
@@ -293,20 +474,48 @@ class Budget:
         if isinstance(self.min_passes, bool) or not isinstance(self.min_passes, int) or self.min_passes < MIN_PASSES:
             raise ValueError(f"min_passes: expected an integer >= {MIN_PASSES}, got {self.min_passes!r}")
 
+    def _fitting_spp(self, stats: PassStats) -> float:
+        """Spp that fit in the time left at the last pass's rate (inf without a time budget or a rate)."""
+        rate = stats.seconds_per_spp()
+        if self.seconds is None or stats.passes == 0 or not math.isfinite(rate):
+            return math.inf
+        return (self.seconds - stats.seconds) / rate
+
     def stop_reason(self, stats: PassStats) -> str | None:
-        """Why the render is done after ``stats`` (``"spp"``, ``"time"``, ``"error"``), or None."""
+        """Why the render is done after ``stats`` (one of :data:`STOP_REASONS` but ``"interrupted"``), or None.
+
+        ``"time"`` also when less than one spp fits in the time left.
+        """
         if stats.passes == 0:
             return None
         if self.spp is not None and stats.spp >= self.spp:
             return "spp"
-        if self.target_error is not None and stats.passes >= self.min_passes \
+        if self.target_error is not None and stats.passes >= self.min_passes and stats.trusted \
                 and stats.estimated_relmse <= self.target_error:
             return "error"
-        if self.seconds is not None and stats.seconds >= self.seconds:
+        if self.seconds is not None and (stats.seconds >= self.seconds or self._fitting_spp(stats) + 0.5 < 1):
             return "time"
+        if stats.spp >= MAX_SAMPLES:
+            return "limit"
         return None
 
+    def _check_reachable(self, stats: PassStats) -> None:
+        """UsageError where an error budget alone would never end: no finite pixel, or out of reach."""
+        if self.target_error is None or stats.passes < self.min_passes:
+            return
+        if stats.nonfinite >= stats.width * stats.height:
+            raise UsageError(f"target error: every pixel is NaN or inf after {stats.passes} passes, so the error "
+                             "cannot be estimated (the scene or its integrator gives non-finite values)")
+        if self.seconds is None and self.spp is None and stats.trusted and stats.estimated_relmse > 0:
+            needed = stats.spp * stats.estimated_relmse / self.target_error
+            if needed > MAX_SAMPLES:
+                raise UsageError(f"target error {self.target_error:g} is out of reach: the estimated relMSE is "
+                                 f"{stats.estimated_relmse:.3g} at {stats.spp} spp and falls as 1/spp, so it needs "
+                                 f"about {needed:.2g} spp, more than the 2^32 - 1 a render may take; "
+                                 "set a larger target, or bound the render with a time or spp budget")
+
     def __call__(self, stats: PassStats) -> int:
+        self._check_reachable(stats)
         if self.stop_reason(stats):
             return 0
         pixels = max(stats.width * stats.height, 1)
@@ -322,19 +531,18 @@ class Budget:
             target = TARGET_PASS_SECONDS if self.seconds is None else min(TARGET_PASS_SECONDS, self.seconds / 8)
             n = 1 << max(round(math.log2(max(target / rate, 1.0))), 0)  # nearest power of two
         n = min(n, largest)
-        if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(
-                stats.estimated_relmse):
+        if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(stats.estimated_relmse):
             needed = stats.spp * stats.estimated_relmse / self.target_error - stats.spp
+            if not stats.trusted:   # below the target but not trusted: grow by a quarter, then check again
+                needed = max(needed, stats.spp / 4)
             n = min(n, _pow2_floor(max(int(math.ceil(needed)), 1)))  # approach it from below
+        n = min(n, MAX_SAMPLES - stats.spp)
         if self.spp is not None and self.spp - stats.spp < n:
             left = self.spp - stats.spp
             n = left if left <= largest else _pow2_floor(left)
-        if self.seconds is not None and stats.passes > 0 and math.isfinite(rate):
-            fit = int((self.seconds - stats.seconds) / rate + 0.5)
-            if fit < 1:
-                return 0
-            if fit < n:
-                n = _pow2_floor(fit)
+        fit = self._fitting_spp(stats)
+        if math.isfinite(fit) and int(fit + 0.5) < n:
+            n = _pow2_floor(int(fit + 0.5))
         return int(n)
 
 
@@ -358,13 +566,14 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
         image, timing = timed_render(scene, spp=spp, seed=dr.opaque(mi.UInt32, seed_k), sensor=sensor)
         channels = channels or _colour_channels(scene, image)
         new = acc.add(image, spp)
-        estimate = new.estimated_relmse(channels)
+        estimate = new.estimate(channels)
         seconds = clock() - begin
         acc = new
         stats = PassStats(passes=acc.passes, spp=acc.weight, pass_spp=spp, seconds=stats.seconds + seconds,
                           pass_seconds=seconds, pass_compile_seconds=timing.compile,
-                          compile_seconds=stats.compile_seconds + timing.compile, estimated_relmse=estimate,
-                          width=stats.width, height=stats.height, seed=seed_k)
+                          compile_seconds=stats.compile_seconds + timing.compile, estimated_relmse=estimate.relmse,
+                          width=stats.width, height=stats.height, seed=seed_k, halves_ratio=estimate.halves_ratio,
+                          trusted=estimate.trusted, nonfinite=estimate.nonfinite)
         yield acc, stats, timing
 
 
@@ -460,7 +669,7 @@ def scene_fingerprint(scene, scene_path: str | Path, params: dict[str, str] | No
 def _save_checkpoint(path: Path, acc: Accumulator, stats: PassStats, history: list, identity: dict) -> None:
     from pointillist.imaging.io import atomic_write
 
-    arrays = dict(acc.to_numpy(), history=np.asarray(history, np.float64).reshape(-1, 4),
+    arrays = dict(acc.to_numpy(), history=np.asarray(history, np.float64).reshape(-1, len(HISTORY_COLUMNS)),
                   stats=np.array(json.dumps(asdict(stats))), identity=np.array(json.dumps(identity)),
                   version=np.int64(CHECKPOINT_VERSION))
     atomic_write(path, lambda tmp: np.savez(tmp, **arrays))
@@ -476,7 +685,7 @@ def _load_checkpoint(path: Path, identity: dict) -> tuple[Accumulator, PassStats
                                  f"expected {CHECKPOINT_VERSION}")
             saved = json.loads(str(data["identity"]))
             stats = PassStats(**json.loads(str(data["stats"])))
-            acc = Accumulator.from_numpy({k: data[k] for k in ("mean", "m2", "weight", "passes")})
+            acc = Accumulator.from_numpy({k: data[k] for k in Accumulator.KEYS})
             history = [tuple(row) for row in np.asarray(data["history"], np.float64)]
     except UsageError:
         raise
@@ -499,21 +708,24 @@ class ProgressiveResult:
     """What :func:`render_progressive` rendered.
 
     ``image``: (H, W, C) float32 mean of all samples; ``variance``: (H, W) float32 variance of
-    the pixel mean averaged over the colour channels; ``history``: one ``(pass, seconds, spp,
-    estimated_relmse)`` row per pass; ``timing``: phases summed over the passes (``total`` = the
-    render seconds); ``stop``: ``"spp"``, ``"time"``, ``"error"`` or ``"interrupted"``.
+    the pixel mean averaged over the colour channels; ``history``: one row per pass,
+    :data:`HISTORY_COLUMNS` (``trusted`` 1, 0, or NaN without an estimate); ``timing``: phases
+    summed over the passes (``total`` = the render seconds); ``stop``: one of
+    :data:`STOP_REASONS`; ``warnings``: one line each (NaN or inf pixels, an estimate the halves
+    do not confirm), for the command line to print.
     """
 
     image: np.ndarray
     variance: np.ndarray
     stats: PassStats
-    history: list[tuple[float, float, float, float]]
+    history: list[tuple[float, ...]]
     timing: RenderTiming
     interrupted: bool
     stop: str
     resumed_from: int = 0
     checkpoints: int = 0
     metadata: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
 
 class _StopOnSignals:
@@ -573,7 +785,7 @@ def _bar_position(budget: Budget, stats: PassStats) -> float:
 def _postfix(budget: Budget, stats: PassStats) -> str:
     text = f"{stats.passes} passes, {stats.spp} spp"
     if math.isfinite(stats.estimated_relmse):
-        text += f", est. relMSE {stats.estimated_relmse:.3g}"
+        text += f", est. relMSE {stats.estimated_relmse:.3g}" + ("" if stats.trusted else " (untrusted)")
         if budget.target_error is not None and stats.estimated_relmse > budget.target_error:
             more = stats.spp * (stats.estimated_relmse / budget.target_error - 1)
             text += f", error ETA ~{more * stats.seconds_per_spp():.0f} s"
@@ -628,7 +840,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     start = _start_stats(scene, sensor, acc)
     if resume:
         acc, start, history = _load_checkpoint(checkpoint_file, identity)
-    resumed_from, stats, stop, checkpoints = acc.passes, start, None, 0
+    resumed_from, stats, stop, checkpoints, first_nonfinite = acc.passes, start, None, 0, None
     sums = [0.0, 0.0, 0.0, 0, 0]  # trace, compile, execute, kernels, cache hits
     last_write = clock()
     bar = _bar(budget, start, progress)
@@ -636,7 +848,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         with _StopOnSignals() as signals:
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
                                             clock=clock):
-                history.append((new.passes, new.seconds, new.spp, new.estimated_relmse))
+                history.append(_history_row(new))
+                if new.nonfinite and first_nonfinite is None:
+                    first_nonfinite = new.passes
                 sums = [sums[0] + timing.trace, sums[1] + timing.compile, sums[2] + timing.execute,
                         sums[3] + timing.kernels, sums[4] + timing.cache_hits]
                 bar.update(_bar_position(budget, new) - _bar_position(budget, stats))
@@ -648,7 +862,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                 if checkpoint_seconds is not None and clock() - last_write >= checkpoint_seconds:
                     _save_checkpoint(checkpoint_file, acc, stats, history, identity)
                     last_write, checkpoints = clock(), checkpoints + 1
-        stop = stop or budget.stop_reason(stats) or "spp"
+        stop = stop or budget.stop_reason(stats)
+        if stop is None:   # Budget returns 0 exactly when stop_reason names a reason
+            raise RuntimeError("the budget stopped the render without a reason")
     except BaseException as error:  # noqa: BLE001 - only interruptions are handled here
         if not _is_interrupt(error) or acc.passes == 0:
             raise
@@ -664,7 +880,8 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     timing = RenderTiming(trace=sums[0], compile=sums[1], execute=sums[2], total=stats.seconds, kernels=int(sums[3]),
                           cache_hits=int(sums[4]))
     metadata = {"spp": stats.spp, "passes": stats.passes, "estimated_relmse": stats.estimated_relmse,
-                "interrupted": stop == "interrupted", "stopped_by": stop,
+                "estimate_state": stats.estimate_state, "halves_ratio": stats.halves_ratio,
+                "nonfinite_pixels": stats.nonfinite, "interrupted": stop == "interrupted", "stopped_by": stop,
                 "pass_seeds": "(TEA(seed, 0) + pass) mod 2^32", "seed": seed}
     for name, value in (("time_budget", budget.seconds), ("target_error", budget.target_error),
                         ("spp_budget", budget.spp), ("pass_spp", budget.pass_spp)):
@@ -674,22 +891,52 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         metadata["resumed_from_passes"] = resumed_from
     return ProgressiveResult(image=image, variance=variance, stats=stats, history=history, timing=timing,
                              interrupted=stop == "interrupted", stop=stop, resumed_from=resumed_from,
-                             checkpoints=checkpoints, metadata=metadata)
+                             checkpoints=checkpoints, metadata=metadata,
+                             warnings=_warnings(stats, first_nonfinite))
+
+
+def _history_row(stats: PassStats) -> tuple[float, ...]:
+    """One row of :data:`HISTORY_COLUMNS`."""
+    trusted = math.nan if stats.estimate_state == "none" else float(stats.trusted)
+    return (stats.passes, stats.seconds, stats.spp, stats.estimated_relmse, stats.halves_ratio, trusted)
+
+
+def _warnings(stats: PassStats, first_nonfinite: int | None) -> list[str]:
+    """The lines a finished render warns with: NaN/inf pixels, an estimate its halves do not confirm."""
+    warnings = []
+    if stats.nonfinite:
+        since = "in the resumed passes" if first_nonfinite is None else f"from pass {first_nonfinite} on"
+        warnings.append(f"{stats.nonfinite} of {stats.width * stats.height} pixels are NaN or inf ({since}); "
+                        "they stay so in the image and are left out of the error estimate")
+    if stats.estimate_state == "untrusted":
+        warnings.append(f"the error estimate is not trusted: its two halves differ {stats.halves_ratio:.3g}x "
+                        f"(more than {HALVES_AGREEMENT:g}x), so rare bright paths dominate it and the true error "
+                        "may be far from it; render longer")
+    return warnings
 
 
 def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=()) -> list[Path]:
-    """Write ``OUT.progress.csv`` (pass, seconds, spp, estimated_relmse) and, with ``png``, ``OUT.progress.png``.
+    """Write ``OUT.progress.csv`` and, with ``png``, ``OUT.progress.png``.
 
-    The plot shows the estimated relMSE against render seconds on log-log axes with a line of
-    slope -1 (error proportional to 1/t, the Monte Carlo rate) through the last estimate.
-    Returns the paths written.
+    The CSV has one row per pass: ``pass, seconds, spp, estimated_relmse, halves_ratio,
+    estimate_state`` (``none``, ``trusted`` or ``untrusted``; empty numbers where there is no
+    estimate). The plot shows the estimated relMSE against render seconds on log-log axes, trusted
+    estimates filled and untrusted ones hollow, with a line of slope -1 (error proportional to 1/t,
+    the Monte Carlo rate) through the last estimate. Returns the paths written.
     """
     from pointillist.imaging.io import atomic_write, check_output_path, save_figure
 
     csv_path, png_path = progress_paths(out)
     check_output_path(csv_path, inputs)
-    rows = ["pass,seconds,spp,estimated_relmse"] + [
-        f"{int(k)},{t:.6f},{int(n)},{'' if not math.isfinite(e) else f'{e:.6g}'}" for k, t, n, e in history]
+    data = np.asarray(history, np.float64).reshape(-1, len(HISTORY_COLUMNS))
+    states = np.where(np.isnan(data[:, 5]), "none", np.where(data[:, 5] > 0, "trusted", "untrusted"))
+
+    def number(x: float, fmt: str) -> str:
+        return "" if not math.isfinite(x) else format(x, fmt)
+
+    rows = [",".join(HISTORY_COLUMNS[:5] + ("estimate_state",))] + [
+        f"{int(k)},{t:.6f},{int(n)},{number(e, '.6g')},{number(q, '.4g')},{state}"
+        for (k, t, n, e, q, _), state in zip(data, states)]
     atomic_write(csv_path, lambda tmp: Path(tmp).write_text("\n".join(rows) + "\n"))
     written = [csv_path]
     if png:
@@ -699,12 +946,15 @@ def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=
         import matplotlib.pyplot as plt
 
         check_output_path(png_path, inputs)
-        data = np.asarray(history, np.float64).reshape(-1, 4)
         ok = np.isfinite(data[:, 3]) & (data[:, 3] > 0) & (data[:, 1] > 0)
         fig, ax = plt.subplots(figsize=(5.5, 4), dpi=110)
         if ok.any():
-            t, e = data[ok, 1], data[ok, 3]
-            ax.loglog(t, e, "o-", ms=3, label="estimated relMSE")
+            t, e, trusted = data[ok, 1], data[ok, 3], states[ok] == "trusted"
+            ax.loglog(t, e, "-", color="C0", lw=1, label="estimated relMSE")
+            ax.loglog(t[trusted], e[trusted], "o", ms=3, color="C0", label="trusted (halves agree)")
+            if (~trusted).any():
+                ax.loglog(t[~trusted], e[~trusted], "o", ms=4, mfc="none", color="C3",
+                          label="untrusted (halves disagree)")
             span = np.array([t.min(), t.max()])
             ax.loglog(span, e[-1] * t[-1] / span, "--", color="grey", label="1/t (slope -1)")
             ax.legend(fontsize=8)
