@@ -23,34 +23,35 @@ sigma^2`` for ``K`` passes of any sizes, so
 expected squared error of a pixel is ``v``; the reference in the denominator is unknown. A pixel's
 own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/2
 (``v <= m^2 / 4``; a rare path has then been found about four times or more), with the bias of
-``m^2`` removed (``E[m^2] = r^2 + v``). An unreliable pixel is one whose mean rests on one to three
-rare, bright samples (a firefly): its own mean is then mostly the firefly and says little about
-``r`` (``m^2 - v`` is about 0 after one firefly, ``m^2`` far above ``r^2``), so it takes the
-smaller of that and the squared median ``n`` of its 3x3 neighbourhood (clamped at the border),
-which a lone firefly does not move::
+``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean rests on one to three rare,
+bright samples (a firefly) and says little about ``r`` (``m^2 - v`` is about 0 after one firefly,
+``m^2`` far above ``r^2``); the pixel takes the smaller of that and ``n^2``, ``n`` the mean of its
+8 neighbours (border pixels repeated outward), which its own firefly does not reach and which the
+fireflies found around it make an estimate of the local ``r``::
 
     d = m^2 - v                     where v <= m^2 / 4
     d = min(max(m^2 - v, 0), n^2)   elsewhere
     estimated_relmse = mean over finite pixels and colour channels of v / (d + eps)
 
-A firefly then raises the estimate by ``v / (n^2 + eps)``, as much as it raises the true error,
-however bright it is, and a second or third firefly in the same pixel raises it again (the
-per-pixel ``v / (m^2 / 4)``, which a reference-free estimate of ``r`` from the pixel alone gives,
-stays near 4 whatever the firefly: 100x below the truth on a path-traced glass caustic at 8-64 spp).
-Two limits: a lone bright pixel that is real (a light smaller than a pixel) is counted as a firefly
-until it has about four hits (the estimate is high, on the safe side, meanwhile), and a path that
-no pass has found yet leaves no trace in its pixel (over an image, the pixels where it was found
-stand in for those where it was not).
+A firefly then raises the estimate by about ``v / (n^2 + eps)``, as much as it raises the true
+error, however bright it is, and a second and third firefly in the same pixel raise it again. (The
+previous estimate, ``v / (max(m^2 - v, m^2 / 4) + eps)``, topped out near 4 per pixel whatever the
+firefly: 40-90x below the truth on a path-traced glass caustic at 8-32 spp.) The estimate is high,
+on the safe side, where a bright feature smaller than a pixel or a sharp highlight has been hit
+only a few times (its neighbours are dark), and where a caustic has been found in few pixels yet
+(``n`` is then the diffuse light around it): on the hard scenes of benchmarks/estimator.py, 2-4x
+high at 8-16 spp, within 2x from about 32 spp. A path that no pass has found yet leaves no trace
+in its pixel; over an image, the pixels where it was found stand in for those where it was not.
 
 **Trust.** The estimate is reported from :data:`MIN_PASSES` passes on (before: NaN). It is
-*trusted* when the two halves, each with at least two passes, agree: with ``e_h`` = the mean of
+*trusted* when the two halves, each with at least two passes, agree: with ``e_h`` the mean of
 ``v_h W_h / (d + eps)`` (half ``h``'s error per spp, same denominators), ``max(e_A, e_B) /
-min(e_A, e_B) <= HALVES_AGREEMENT`` (:data:`HALVES_AGREEMENT`, 2). A firefly, or a rare path
-found so far by one half only, makes them disagree; an error budget stops only on a trusted
-estimate. Pixels holding NaN or inf (a NaN sample makes its pixel NaN for good) are counted
-(:attr:`PassStats.nonfinite`) and left out of the estimate. It assumes independent passes and an
-unbiased estimator: a seed-free ``grid`` sampler gives identical passes (estimate 0), and a bias
-(clamping, a ``max_depth`` cut-off) is not in the spread.
+min(e_A, e_B) <= HALVES_AGREEMENT`` (3: each half then lies within 1.5x of their mean). A firefly,
+or a rare path that only one half has found, makes them disagree; an error budget stops only on a
+trusted estimate. Pixels holding NaN or inf (a NaN sample makes its pixel NaN for good) are
+counted (:attr:`PassStats.nonfinite`) and left out of the estimate. It assumes independent passes
+and an unbiased estimator: a seed-free ``grid`` sampler gives identical passes (estimate 0), and a
+bias (clamping, a ``max_depth`` cut-off) is not in the spread.
 
 :func:`render_passes` is the engine (a generator of ``(image so far, PassStats)``),
 :class:`Budget` decides the size of each pass (time, error and spp budgets, auto pass size),
@@ -91,9 +92,11 @@ MIN_PASSES = 8
 #: (relative standard error at most 1/2: a rare path found about four times or more).
 RELIABLE_VARIANCE = 0.25
 
-#: An error budget stops only when the two halves' errors per spp agree within this factor
-#: (benchmarks/RESULTS.md, "The progressive error estimate on hard scenes").
-HALVES_AGREEMENT = 2.0
+#: An error budget stops only when the two halves' errors per spp agree within this factor (each half
+#: is then within 1.5x of their mean). benchmarks/estimator.py: 1.0-1.7 on the scenes the estimate
+#: was tuned on and where it held on the hard ones, 2-2.7 on the Phong spheres of exponent 1000,
+#: 5-460 at 8-16 spp on the glass caustic and 4e6 at a sub-pixel light's first hit.
+HALVES_AGREEMENT = 3.0
 
 #: Why a progressive render stopped (``stopped_by`` in the EXR header): the spp budget, the time
 #: budget, the error target (reached with a trusted estimate), Ctrl-C/SIGTERM, or ``limit``: the
@@ -209,6 +212,10 @@ class ErrorEstimate:
     nonfinite: int
 
 
+#: The 3x3 neighbourhood without its centre (:meth:`Accumulator.estimate`).
+_AROUND = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.float32)
+
+
 class Accumulator:
     """Per-pixel, per-channel weighted Welford sums of pass images in two halves, float64 (immutable).
 
@@ -322,7 +329,7 @@ class Accumulator:
         import drjit as dr
         import mitsuba as mi
 
-        from pointillist.imaging.filters import median
+        from pointillist.imaging.filters import correlate
 
         nan = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0)
         if self.passes == 0:
@@ -346,20 +353,21 @@ class Accumulator:
             return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, nonfinite)
         m = dr.select(finite, m, 0.0)
         v = dr.select(finite, v, 0.0)
-        local = median(mi.TensorXf(dr.float32_array_t(type(m))(m), (height, width, c)), 3, border="clamp")
-        n = dr.float64_array_t(type(m))(local.array)
+        # the leave-one-out mean of the 3x3 neighbourhood (the border pixels repeated outward)
+        around = correlate(mi.TensorXf(dr.float32_array_t(type(m))(m), (height, width, c)), _AROUND, border="clamp")
+        n = dr.float64_array_t(type(m))(around.array) * (1.0 / 8.0)
         square = m * m
         own = dr.maximum(square - v, 0.0)
-        d = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
+        reliable = v <= RELIABLE_VARIANCE * square
+        d = dr.select(reliable, own, dr.minimum(own, n * n))
         inverse = dr.select(finite, 1.0 / (d + RELMSE_EPSILON), 0.0)
-        count = dr.opaque(type(m), 1.0 / max(height * width * c - int(dr.count(~finite)[0]), 1))
-        sums = [dr.sum(v * inverse) * count]
+        count = 1.0 / max(height * width * c - int(dr.count(~finite)[0]), 1)
+        sums = [dr.sum(v * inverse) * dr.opaque(type(m), count)]
         for var_h, weight in halves:
-            sums.append(dr.sum(dr.select(finite, var_h.array, 0.0) * inverse) * count * weight)
+            sums.append(dr.sum(dr.select(finite, var_h.array, 0.0) * inverse) * dr.opaque(type(m), count * weight))
         dr.eval(*sums)
         relmse = float(sums[0][0])
-        per_spp = [float(s[0]) for s in sums[1:]] + [math.nan] * (3 - len(sums))
-        e_a, e_b = per_spp
+        e_a, e_b = [float(s[0]) for s in sums[1:]] + [math.nan] * (3 - len(sums))
         if not (math.isfinite(e_a) and math.isfinite(e_b)):
             ratio = math.nan
         elif max(e_a, e_b) == 0:
