@@ -1,57 +1,68 @@
 """Progressive rendering: passes, a running error estimate without a reference, and budgets.
 
 A progressive render is a sequence of *passes*: ``mi.render(scene, spp=n_k, seed=s_k)``, each an
-independent estimate of the image (its own seed, :func:`pass_seed`). Each pass goes to one of two
-*halves* (the one with fewer samples so far; ties to the first), and each half accumulates its
-passes per pixel and channel with Welford's update in the weighted form of West (1979), weights =
-the passes' sample counts, in float64:
+independent estimate of the image (its own seed, :func:`pass_seed`). The passes are accumulated per
+pixel and channel in float64, in two ways:
 
-    W += n;  delta = x - mean;  mean += (n / W) * delta;  M2 += n * delta * (x - mean)
+- Welford's update in the weighted form of West (1979), weights = the passes' sample counts::
 
-The whole render is the two halves combined (Chan, Golub and LeVeque 1979; exact, ``d = mean_B -
-mean_A``): ``mean = mean_A + d W_B / W`` and ``M2 = M2_A + M2_B + d^2 W_A W_B / W``. With a box
-reconstruction filter a pass image is the plain mean of its samples in each pixel, so ``mean`` is
-the mean of all ``W`` samples: statistically one render of ``W`` spp (bit for bit the same mean when
-every pass gives the same image, e.g. a deterministic estimator with a seed-free sampler). If a
-sample has variance ``sigma^2``, a pass of ``n`` spp has ``sigma^2 / n`` and ``E[M2] = (K - 1)
-sigma^2`` for ``K`` passes of any sizes, so
+      W += n;  delta = x - mean;  mean += (n / W) * delta;  M2 += n * delta * (x - mean)
 
-    v = var_of_mean = M2 / ((K - 1) W)          (unbiased; needs K >= 2)
+  If a sample has variance ``sigma^2``, a pass of ``n`` spp has ``sigma^2 / n`` and ``E[M2] = (K -
+  1) sigma^2`` for ``K`` passes of any sizes, so ``var_of_mean = M2 / ((K - 1) W)`` (unbiased;
+  the ``variance`` layer);
+- four *quarters*: each pass goes to the half with fewer samples so far (ties: the first), and
+  within it to the quarter with fewer samples; each quarter keeps the mean of its passes, and the
+  quarters combined (Chan, Golub and LeVeque 1979, exact) give the mean of all samples.
+
+With a box reconstruction filter a pass image is the plain mean of its samples in each pixel, so
+the mean is that of all ``W`` samples: statistically one render of ``W`` spp (bit for bit the same
+mean when every pass gives the same image, e.g. a deterministic estimator with a seed-free sampler).
+
+The error estimate takes the variance of the mean from the spread between the quarters, ``v = sum_q
+W_q (m_q - m)^2 / (3 W)`` (unbiased for any split): a firefly found in a pass of ``n`` spp adds
+``F^2 / n`` to Welford's ``M2`` but about ``F^2 / (W / 4)`` to the quarters', so the quarters' ``v``
+follows the error the firefly really adds, ``(F / W)^2``, while ``var_of_mean`` over-states it
+``W / ((K - 1) n)`` times when it fell in a small pass (measured: 50x on the sun scene of
+benchmarks/estimator.py, whose error budgets start with passes of 1 spp).
 
 **Estimated relMSE** (the relMSE of :func:`pointillist.imaging.metrics.image_errors`, epsilon
 ``eps`` = :data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the
 expected squared error of a pixel is ``v``; the reference in the denominator is unknown. A pixel's
-own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/2
-(``v <= m^2 / 4``; a rare path has then been found about four times or more), with the bias of
-``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean rests on one to three rare,
-bright samples (a firefly) and says little about ``r`` (``m^2 - v`` is about 0 after one firefly,
-``m^2`` far above ``r^2``); the pixel takes the smaller of that and ``n^2``, ``n`` the mean of its
+own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/3
+(``v <= m^2 / 9``, :data:`RELIABLE_VARIANCE`; a rare path has then been found in three quarters or
+more), with the bias of ``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean
+may rest on a few rare, bright samples (a firefly) and say little about ``r`` (``m^2 - v`` is about
+0 after one firefly, ``m^2`` far above ``r^2``); the pixel takes the smaller of that and ``n^2``,
+``n`` the mean of its
 8 neighbours (border pixels repeated outward), which its own firefly does not reach and which the
 fireflies found around it make an estimate of the local ``r``::
 
-    d = m^2 - v                     where v <= m^2 / 4
-    d = min(max(m^2 - v, 0), n^2)   elsewhere
+    d = m^2 - v                                       where v <= m^2 / 9
+    d = max(min(max(m^2 - v, 0), n^2), (m / 64)^2)    elsewhere
     estimated_relmse = mean over finite pixels and colour channels of v / (d + eps)
 
 A firefly then raises the estimate by about ``v / (n^2 + eps)``, as much as it raises the true
-error, however bright it is, and a second and third firefly in the same pixel raise it again. (The
-previous estimate, ``v / (max(m^2 - v, m^2 / 4) + eps)``, topped out near 4 per pixel whatever the
-firefly: 40-90x below the truth on a path-traced glass caustic at 8-32 spp.) The estimate is high,
-on the safe side, where a bright feature smaller than a pixel or a sharp highlight has been hit
-only a few times (its neighbours are dark), and where a caustic has been found in few pixels yet
-(``n`` is then the diffuse light around it): on the hard scenes of benchmarks/estimator.py, 2-4x
-high at 8-16 spp, within 2x from about 32 spp. A path that no pass has found yet leaves no trace
-in its pixel; over an image, the pixels where it was found stand in for those where it was not.
+error, up to 64 times the pixel's reference, and a second firefly in the same pixel raises it
+again. (The
+previous estimate, ``var_of_mean / (max(m^2 - var_of_mean, m^2 / 4) + eps)``, topped out near 4 per
+pixel whatever the firefly: 40-90x below the truth on a path-traced glass caustic at 8-32 spp.)
+The floor ``(m / 64)^2`` (:data:`FIREFLY_RANGE`) bounds what one hit of a feature smaller than a
+pixel may claim where its neighbours are dark (a glint of a small light in a mirror, hit once, is
+not known from a firefly); such pixels keep the estimate high, on the safe side, until they have
+been hit in three quarters. A path that no pass has found yet leaves no trace in its pixel; over an
+image, the pixels where it was found stand in for those where it was not.
 
 **Trust.** The estimate is reported from :data:`MIN_PASSES` passes on (before: NaN). It is
-*trusted* when the two halves, each with at least two passes, agree: with ``e_h`` the mean of
-``v_h W_h / (d + eps)`` (half ``h``'s error per spp, same denominators), ``max(e_A, e_B) /
-min(e_A, e_B) <= HALVES_AGREEMENT`` (3: each half then lies within 1.5x of their mean). A firefly,
-or a rare path that only one half has found, makes them disagree; an error budget stops only on a
-trusted estimate. Pixels holding NaN or inf (a NaN sample makes its pixel NaN for good) are
-counted (:attr:`PassStats.nonfinite`) and left out of the estimate. It assumes independent passes
-and an unbiased estimator: a seed-free ``grid`` sampler gives identical passes (estimate 0), and a
-bias (clamping, a ``max_depth`` cut-off) is not in the spread.
+*trusted* when the two halves agree on the error per spp: with ``e_h`` the mean of ``(m_q1 -
+m_q2)^2 W_q1 W_q2 / W_h / (d + eps)`` over the pixels (half ``h``'s variance from its two quarters,
+per spp, same denominators), ``max(e_A, e_B) / min(e_A, e_B) <= HALVES_AGREEMENT`` (3: each half
+then lies within 1.5x of their mean). A firefly, or a rare path that only one half has found, makes
+them disagree; an error budget stops only on a trusted estimate. Pixels holding NaN or inf (a NaN
+sample makes its pixel NaN for good) are counted (:attr:`PassStats.nonfinite`) and left out of the
+estimate. It assumes independent passes and an unbiased estimator: a seed-free ``grid`` sampler
+gives identical passes (estimate 0), and a bias (clamping, a ``max_depth`` cut-off) is not in the
+spread.
 
 :func:`render_passes` is the engine (a generator of ``(image so far, PassStats)``),
 :class:`Budget` decides the size of each pass (time, error and spp budgets, auto pass size),
@@ -80,6 +91,7 @@ from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
 __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "RELIABLE_VARIANCE",
+           "FIREFLY_RANGE",
            "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed", "tea32", "PassStats", "ErrorEstimate", "Accumulator",
            "Budget", "render_passes", "ProgressiveResult", "render_progressive", "write_progress", "checkpoint_path",
            "progress_paths", "scene_fingerprint"]
@@ -88,9 +100,16 @@ __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOIN
 #: passes the estimate was off by up to 2x on small path-traced images, at 8 within 1.8x).
 MIN_PASSES = 8
 
-#: A pixel's own mean stands for its reference where ``var_of_mean <= RELIABLE_VARIANCE * mean^2``
-#: (relative standard error at most 1/2: a rare path found about four times or more).
-RELIABLE_VARIANCE = 0.25
+#: A pixel's own mean stands for its reference where its variance (from the quarters) is at most
+#: ``RELIABLE_VARIANCE * mean^2``: relative standard error at most 1/3 (benchmarks/estimator.py: 1/3
+#: kept the hard scenes within 0.8-1.25 from 64 spp on, where 1/2 let them drift to 1.3-1.8).
+RELIABLE_VARIANCE = 1.0 / 9.0
+
+#: An unreliable pixel's reference is taken to be at least its mean / FIREFLY_RANGE (one hit then
+#: claims at most FIREFLY_RANGE^2 times its relative variance). benchmarks/estimator.py: a glass
+#: caustic at 8 spp needs about 40 (mean / reference of its firefly pixels); the glint of a tiny light
+#: in a mirror, hit once, is 8; 64 keeps the first within 1.4x and the second high, on the safe side.
+FIREFLY_RANGE = 64
 
 #: An error budget stops only when the two halves' errors per spp agree within this factor (each half
 #: is then within 1.5x of their mean). benchmarks/estimator.py: 1.0-1.7 on the scenes the estimate
@@ -112,7 +131,7 @@ TARGET_PASS_SECONDS = 2.0
 #: Auto pass size: samples (pixels x spp) of the first pass, which also compiles the kernels.
 FIRST_PASS_SAMPLES = 2**18
 
-#: Format version of the checkpoint file (2: the two halves' Welford sums).
+#: Format version of the checkpoint file (2: the four quarters' means).
 CHECKPOINT_VERSION = 2
 
 #: Columns of a history row (:attr:`ProgressiveResult.history`, the progress CSV, checkpoints).
@@ -199,9 +218,9 @@ class ErrorEstimate:
     """The error estimate of an :class:`Accumulator` (module docstring).
 
     ``relmse``: the estimated relMSE (NaN before :data:`MIN_PASSES` passes or without a finite
-    pixel); ``halves``: the two halves' errors per spp ``(e_A, e_B)`` (NaN where a half has fewer
-    than two passes); ``halves_ratio``: ``max / min`` of those (1 when both are 0, inf when one
-    is); ``trusted``: an estimate whose halves agree within :data:`HALVES_AGREEMENT`;
+    pixel); ``halves``: the two halves' errors per spp ``(e_A, e_B)``; ``halves_ratio``: ``max /
+    min`` of those (1 when both are 0, inf when one is); ``trusted``: an estimate whose halves
+    agree within :data:`HALVES_AGREEMENT`;
     ``nonfinite``: pixels with a NaN or inf colour value (left out).
     """
 
@@ -217,13 +236,14 @@ _AROUND = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.float32)
 
 
 class Accumulator:
-    """Per-pixel, per-channel weighted Welford sums of pass images in two halves, float64 (immutable).
+    """Per-pixel, per-channel sums of pass images in four quarters, float64 (immutable).
 
-    ``halves`` holds two ``(mean, m2, weight, passes)``: Dr.Jit float64 tensors of the image's
-    shape (None while empty), the half's spp and passes. Each pass goes to the half with fewer
-    samples so far. ``mean`` and ``m2`` are the whole render's (the halves combined), ``weight``
-    its spp and ``passes`` its passes. :meth:`add` returns a new accumulator, so a render
-    interrupted at any point keeps a consistent one.
+    ``quarters`` holds four ``(mean, weight, passes)``: a Dr.Jit float64 tensor of the image's shape
+    (None while empty), the quarter's spp and passes; quarters 0-1 are the first half, 2-3 the
+    second. Each pass goes to the half with fewer samples (ties: the first), and there to the
+    quarter with fewer samples. ``m2`` is Welford's ``M2`` over all passes. ``mean`` (all samples),
+    ``weight`` (spp) and ``passes`` are the whole render's. :meth:`add` returns a new accumulator,
+    so a render interrupted at any point keeps a consistent one.
 
     Examples
     --------
@@ -234,23 +254,30 @@ class Accumulator:
     ...     acc = acc.add(mi.TensorXf(np.full((1, 1, 1), x, np.float32)), n)
     >>> float(acc.mean.numpy()[0, 0, 0]), round(float(acc.variance_of_mean().numpy()[0, 0, 0]), 12)
     (2.0, 0.25)
-    >>> [(h[2], h[3]) for h in acc.halves]     # (spp, passes): 1 and 2 in one half, 3 in the other
-    [(3, 2), (1, 1)]
+    >>> [(q[1], q[2]) for q in acc.quarters]     # (spp, passes): passes 1 and 3 in the first half, 2 in the second
+    [(1, 1), (2, 1), (1, 1), (0, 0)]
     """
 
-    __slots__ = ("halves", "weight", "passes", "_total")
+    __slots__ = ("quarters", "m2", "weight", "passes", "_means")
 
-    _EMPTY = (None, None, 0, 0)
+    _EMPTY = (None, 0, 0)
 
-    def __init__(self, halves=None):
-        self.halves = tuple(halves) if halves is not None else (self._EMPTY, self._EMPTY)
-        self.weight = sum(int(h[2]) for h in self.halves)
-        self.passes = sum(int(h[3]) for h in self.halves)
-        self._total = None
+    def __init__(self, quarters=None, m2=None):
+        self.quarters = tuple(quarters) if quarters is not None else (self._EMPTY,) * 4
+        self.m2 = m2
+        self.weight = sum(int(q[1]) for q in self.quarters)
+        self.passes = sum(int(q[2]) for q in self.quarters)
+        self._means = None
 
     @classmethod
     def empty(cls) -> Accumulator:
         return cls()
+
+    @staticmethod
+    def _quarter(quarters) -> int:
+        w = [q[1] for q in quarters]
+        half = 0 if w[0] + w[1] <= w[2] + w[3] else 2
+        return half if w[half] <= w[half + 1] else half + 1
 
     def add(self, image, spp: int) -> Accumulator:
         """The accumulator with ``image`` (a pass of ``spp`` samples per pixel) added; evaluated."""
@@ -260,117 +287,121 @@ class Accumulator:
         shape = self.shape
         if shape is not None and tuple(x.shape) != shape:
             raise ValueError(f"image: expected shape {shape}, got {tuple(x.shape)}")
-        k = 0 if self.halves[0][2] <= self.halves[1][2] else 1
-        mean, m2, weight, passes = self.halves[k]
-        if mean is None:
-            mean, m2 = x, dr.zeros(type(x), x.shape)
-        else:
-            frac = dr.opaque(dr.float64_array_t(dr.array_t(x)), spp / (weight + spp))
-            n = dr.opaque(dr.float64_array_t(dr.array_t(x)), float(spp))
-            delta = x - mean
-            mean = mean + delta * frac
-            m2 = m2 + n * delta * (x - mean)
-        dr.eval(mean, m2)
-        halves = list(self.halves)
-        halves[k] = (mean, m2, weight + spp, passes + 1)
-        return Accumulator(halves)
+        f64 = dr.float64_array_t(dr.array_t(x))
+        k = self._quarter(self.quarters)
+        mean, weight, passes = self.quarters[k]
+        quarters = list(self.quarters)
+        quarters[k] = (x if mean is None else mean + (x - mean) * dr.opaque(f64, spp / (weight + spp)),
+                       weight + spp, passes + 1)
+        new = Accumulator(quarters)
+        if self.passes == 0:
+            new.m2 = dr.zeros(type(x), x.shape)
+        else:   # Welford: M2 += n (x - mean_before) (x - mean_after)
+            new.m2 = self.m2 + dr.opaque(f64, float(spp)) * (x - self.mean) * (x - new.mean)
+        dr.eval(new.m2, *new._combined())
+        return new
 
     @property
     def shape(self) -> tuple[int, ...] | None:
         """The image's shape (None before the first pass)."""
-        for mean, *_ in self.halves:
+        for mean, *_ in self.quarters:
             if mean is not None:
                 return tuple(mean.shape)
         return None
 
-    def _combined(self):
-        if self._total is None:
-            import drjit as dr
+    @staticmethod
+    def _merge(a, b):
+        """Two ``(mean, weight)`` as one (Chan et al.: exact where both means are equal)."""
+        import drjit as dr
 
-            (mean_a, m2_a, w_a, _), (mean_b, m2_b, w_b, _) = self.halves
-            if mean_b is None:
-                self._total = (mean_a, m2_a)
-            else:
-                f64 = dr.float64_array_t(dr.array_t(mean_a))
-                d = mean_b - mean_a
-                mean = mean_a + d * dr.opaque(f64, w_b / (w_a + w_b))
-                m2 = m2_a + m2_b + d * d * dr.opaque(f64, w_a * w_b / (w_a + w_b))
-                dr.eval(mean, m2)
-                self._total = (mean, m2)
-        return self._total
+        (mean_a, w_a), (mean_b, w_b) = a, b
+        if mean_a is None or mean_b is None:
+            return (mean_b, w_b) if mean_a is None else (mean_a, w_a)
+        f64 = dr.float64_array_t(dr.array_t(mean_a))
+        return mean_a + (mean_b - mean_a) * dr.opaque(f64, w_b / (w_a + w_b)), w_a + w_b
+
+    def _combined(self):
+        """``(mean of the first half, of the second, of all)`` (cached; None while empty)."""
+        if self._means is None:
+            q = [(mean, weight) for mean, weight, _ in self.quarters]
+            first, second = self._merge(q[0], q[1]), self._merge(q[2], q[3])
+            self._means = (first[0], second[0], self._merge(first, second)[0])
+        return self._means
 
     @property
     def mean(self):
         """The mean of all samples, a float64 Dr.Jit tensor (None before the first pass)."""
-        return self._combined()[0]
-
-    @property
-    def m2(self):
-        """The whole render's Welford ``M2`` (the halves combined)."""
-        return self._combined()[1]
-
-    @staticmethod
-    def _variance(m2, weight: int, passes: int):
-        import drjit as dr
-
-        if passes < 2:
-            return dr.zeros(type(m2), m2.shape)
-        return m2 * dr.opaque(dr.float64_array_t(dr.array_t(m2)), 1.0 / ((passes - 1) * weight))
+        return self._combined()[2]
 
     def variance_of_mean(self):
-        """``M2 / ((K - 1) W)``: the variance of each pixel's mean (zeros before two passes)."""
-        return self._variance(self.m2, self.weight, self.passes)
+        """``M2 / ((K - 1) W)``: the variance of each pixel's mean from its ``K`` passes (zeros before two)."""
+        import drjit as dr
+
+        if self.passes < 2:
+            return dr.zeros(type(self.m2), self.m2.shape)
+        return self.m2 * dr.opaque(dr.float64_array_t(dr.array_t(self.m2)), 1.0 / ((self.passes - 1) * self.weight))
+
+    def quarters_variance(self):
+        """``sum_q W_q (m_q - m)^2 / (3 W)``: the variance of each pixel's mean from its four quarters
+        (None until every quarter has a pass)."""
+        import drjit as dr
+
+        if any(q[2] == 0 for q in self.quarters):
+            return None
+        mean, f64 = self.mean, dr.float64_array_t(dr.array_t(self.mean))
+        total = 0.0
+        for m_q, w_q, _ in self.quarters:
+            total = total + dr.square(m_q - mean) * dr.opaque(f64, w_q / (3.0 * self.weight))
+        return total
 
     def estimate(self, channels: int = 3) -> ErrorEstimate:
-        """The relMSE estimated from the spread between passes, and whether it is trusted (module docstring).
-
-        Over all pixels and the first ``channels`` channels (the colour; not AOVs).
+        """The relMSE estimated from the spread between the quarters, and whether it is trusted (module
+        docstring). Over all pixels and the first ``channels`` channels (the colour; not AOVs).
         """
         import drjit as dr
         import mitsuba as mi
 
         from pointillist.imaging.filters import correlate
 
-        nan = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0)
         if self.passes == 0:
-            return nan
-        mean, var = self.mean, self.variance_of_mean()
-        height, width, depth = (tuple(mean.shape) + (1,))[:3]
+            return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0)
+        height, width, depth = (self.shape + (1,))[:3]
         c = max(min(int(channels), depth), 1)
-        halves = [(self._variance(h[1], h[2], h[3]), h[2]) for h in self.halves if h[3] >= 2]
-        if c < depth:
-            mean, var = mean[..., :c], var[..., :c]
-            halves = [(v[..., :c], w) for v, w in halves]
-        m, v = mean.array, var.array
-        finite = dr.isfinite(m) & dr.isfinite(v)
+
+        def colour(t):
+            return (t[..., :c] if c < depth else t).array
+
+        m = colour(self.mean)
+        finite = dr.isfinite(m)
         bad = dr.select(finite, 0.0, 1.0)          # pixels with any non-finite channel
         pixel = dr.arange(mi.UInt32, height * width) * c
         any_bad = dr.gather(type(bad), bad, pixel)
         for k in range(1, c):
             any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, pixel + k))
         nonfinite = int(dr.sum(any_bad)[0])
-        if self.passes < MIN_PASSES or nonfinite == height * width:
+        variance = self.quarters_variance()
+        if self.passes < MIN_PASSES or variance is None or nonfinite == height * width:
             return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, nonfinite)
+        f64 = type(m)
+        v = dr.select(finite, colour(variance), 0.0)
         m = dr.select(finite, m, 0.0)
-        v = dr.select(finite, v, 0.0)
-        # the leave-one-out mean of the 3x3 neighbourhood (the border pixels repeated outward)
-        around = correlate(mi.TensorXf(dr.float32_array_t(type(m))(m), (height, width, c)), _AROUND, border="clamp")
-        n = dr.float64_array_t(type(m))(around.array) * (1.0 / 8.0)
+        # the mean of the 8 neighbours (the border pixels repeated outward)
+        around = correlate(mi.TensorXf(dr.float32_array_t(f64)(m), (height, width, c)), _AROUND, border="clamp")
+        n = f64(around.array) * (1.0 / 8.0)
         square = m * m
         own = dr.maximum(square - v, 0.0)
-        reliable = v <= RELIABLE_VARIANCE * square
-        d = dr.select(reliable, own, dr.minimum(own, n * n))
+        d = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
+        d = dr.maximum(d, square * (1.0 / FIREFLY_RANGE ** 2))
         inverse = dr.select(finite, 1.0 / (d + RELMSE_EPSILON), 0.0)
         count = 1.0 / max(height * width * c - int(dr.count(~finite)[0]), 1)
-        sums = [dr.sum(v * inverse) * dr.opaque(type(m), count)]
-        for var_h, weight in halves:
-            sums.append(dr.sum(dr.select(finite, var_h.array, 0.0) * inverse) * dr.opaque(type(m), count * weight))
+        sums = [dr.sum(v * inverse) * dr.opaque(f64, count)]
+        for a, b in ((0, 1), (2, 3)):   # each half's variance per spp from its two quarters
+            (m_a, w_a, _), (m_b, w_b, _) = self.quarters[a], self.quarters[b]
+            spread = dr.select(finite, dr.square(colour(m_a) - colour(m_b)), 0.0)
+            sums.append(dr.sum(spread * inverse) * dr.opaque(f64, count * w_a * w_b / (w_a + w_b)))
         dr.eval(*sums)
-        relmse = float(sums[0][0])
-        e_a, e_b = [float(s[0]) for s in sums[1:]] + [math.nan] * (3 - len(sums))
-        if not (math.isfinite(e_a) and math.isfinite(e_b)):
-            ratio = math.nan
-        elif max(e_a, e_b) == 0:
+        relmse, e_a, e_b = (float(s[0]) for s in sums)
+        if max(e_a, e_b) == 0:
             ratio = 1.0
         else:
             ratio = max(e_a, e_b) / min(e_a, e_b) if min(e_a, e_b) > 0 else math.inf
@@ -387,16 +418,15 @@ class Accumulator:
         return mi.TensorXf(self.mean)
 
     # -- checkpoint I/O
-    #: The arrays of :meth:`to_numpy` (``a_``/``b_``: the two halves).
-    KEYS = tuple(f"{h}_{name}" for h in "ab" for name in ("mean", "m2", "weight", "passes"))
+    #: The arrays of :meth:`to_numpy`: ``m2`` and, per quarter ``k``, ``q{k}_mean/weight/passes``.
+    KEYS = ("m2",) + tuple(f"q{k}_{name}" for k in range(4) for name in ("mean", "weight", "passes"))
 
     def to_numpy(self) -> dict[str, Any]:
-        data = {}
-        for h, (mean, m2, weight, passes) in zip("ab", self.halves):
-            empty = np.zeros(self.shape or (0,), np.float64)
-            data.update({f"{h}_mean": empty if mean is None else mean.numpy().astype(np.float64),
-                         f"{h}_m2": empty if m2 is None else m2.numpy().astype(np.float64),
-                         f"{h}_weight": np.int64(weight), f"{h}_passes": np.int64(passes)})
+        empty = np.zeros(self.shape or (0,), np.float64)
+        data = {"m2": empty if self.m2 is None else self.m2.numpy().astype(np.float64)}
+        for k, (mean, weight, passes) in enumerate(self.quarters):
+            data.update({f"q{k}_mean": empty if mean is None else mean.numpy().astype(np.float64),
+                         f"q{k}_weight": np.int64(weight), f"q{k}_passes": np.int64(passes)})
         return data
 
     @classmethod
@@ -405,13 +435,14 @@ class Accumulator:
         import drjit as dr
 
         t64 = dr.float64_array_t(mi.TensorXf)
-        halves = []
-        for h in "ab":
-            passes = int(data[f"{h}_passes"])
-            halves.append((t64(np.asarray(data[f"{h}_mean"], np.float64)) if passes else None,
-                           t64(np.asarray(data[f"{h}_m2"], np.float64)) if passes else None,
-                           int(data[f"{h}_weight"]), passes))
-        return cls(halves)
+        quarters = []
+        for k in range(4):
+            passes = int(data[f"q{k}_passes"])
+            quarters.append((t64(np.asarray(data[f"q{k}_mean"], np.float64)) if passes else None,
+                             int(data[f"q{k}_weight"]), passes))
+        acc = cls(quarters)
+        acc.m2 = t64(np.asarray(data["m2"], np.float64)) if acc.passes else None
+        return acc
 
 
 def _pow2_floor(n: int) -> int:
