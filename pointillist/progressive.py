@@ -54,15 +54,20 @@ been hit in three quarters. A path that no pass has found yet leaves no trace in
 image, the pixels where it was found stand in for those where it was not.
 
 **Trust.** The estimate is reported from :data:`MIN_PASSES` passes on (before: NaN). It is
-*trusted* when the two halves agree on the error per spp: with ``e_h`` the mean of ``(m_q1 -
-m_q2)^2 W_q1 W_q2 / W_h / (d + eps)`` over the pixels (half ``h``'s variance from its two quarters,
-per spp, same denominators), ``max(e_A, e_B) / min(e_A, e_B) <= HALVES_AGREEMENT`` (3: each half
-then lies within 1.5x of their mean). A firefly, or a rare path that only one half has found, makes
-them disagree; an error budget stops only on a trusted estimate. Pixels holding NaN or inf (a NaN
-sample makes its pixel NaN for good) are counted (:attr:`PassStats.nonfinite`) and left out of the
-estimate. It assumes independent passes and an unbiased estimator: a seed-free ``grid`` sampler
-gives identical passes (estimate 0), and a bias (clamping, a ``max_depth`` cut-off) is not in the
-spread.
+*trusted* when the two halves agree on the error per spp and the estimate does not rest on single
+extreme samples:
+
+- with ``e_h`` the mean of ``(m_q1 - m_q2)^2 W_q1 W_q2 / W_h / (d + eps)`` over the pixels (half
+  ``h``'s variance from its two quarters, per spp, same denominators), ``max(e_A, e_B) / min(e_A,
+  e_B) <= HALVES_AGREEMENT`` (3: each half then lies within 1.5x of their mean); a firefly, or a
+  rare path that only one half has found, makes them disagree;
+- at most :data:`FLOORED_SHARE` (1/2) of the estimate comes from pixels held at the floor (their
+  true weight is unknown either way).
+
+An error budget stops only on a trusted estimate. Pixels holding NaN or inf (a NaN sample makes
+its pixel NaN for good) are counted (:attr:`PassStats.nonfinite`) and left out of the estimate. It
+assumes independent passes and an unbiased estimator: a seed-free ``grid`` sampler gives identical
+passes (estimate 0), and a bias (clamping, a ``max_depth`` cut-off) is not in the spread.
 
 :func:`render_passes` is the engine (a generator of ``(image so far, PassStats)``),
 :class:`Budget` decides the size of each pass (time, error and spp budgets, auto pass size),
@@ -73,6 +78,7 @@ spread.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import signal
@@ -91,7 +97,7 @@ from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
 __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "RELIABLE_VARIANCE",
-           "FIREFLY_RANGE",
+           "FIREFLY_RANGE", "FLOORED_SHARE",
            "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed", "tea32", "PassStats", "ErrorEstimate", "Accumulator",
            "Budget", "render_passes", "ProgressiveResult", "render_progressive", "write_progress", "checkpoint_path",
            "progress_paths", "scene_fingerprint"]
@@ -110,6 +116,10 @@ RELIABLE_VARIANCE = 1.0 / 9.0
 #: caustic at 8 spp needs about 40 (mean / reference of its firefly pixels); the glint of a tiny light
 #: in a mirror, hit once, is 8; 64 keeps the first within 1.4x and the second high, on the safe side.
 FIREFLY_RANGE = 64
+
+#: An estimate more than this share of which comes from pixels held at that floor rests on single
+#: extreme samples whose weight is unknown (either way): not trusted.
+FLOORED_SHARE = 0.5
 
 #: An error budget stops only when the two halves' errors per spp agree within this factor (each half
 #: is then within 1.5x of their mean). benchmarks/estimator.py: 1.0-1.7 on the scenes the estimate
@@ -135,7 +145,7 @@ FIRST_PASS_SAMPLES = 2**18
 CHECKPOINT_VERSION = 2
 
 #: Columns of a history row (:attr:`ProgressiveResult.history`, the progress CSV, checkpoints).
-HISTORY_COLUMNS = ("pass", "seconds", "spp", "estimated_relmse", "halves_ratio", "trusted")
+HISTORY_COLUMNS = ("pass", "seconds", "spp", "estimated_relmse", "halves_ratio", "floored", "trusted")
 
 _U32 = 0xFFFFFFFF
 
@@ -178,10 +188,9 @@ class PassStats:
 
     ``seconds``: render seconds of all passes so far (rendering, JIT compilation, accumulation;
     resumed renders include the earlier ones); ``compile_seconds``: the JIT compilation part;
-    ``estimated_relmse``: NaN before :data:`MIN_PASSES` passes; ``halves_ratio`` and ``trusted``:
-    how far the two halves' errors agree and whether that is within :data:`HALVES_AGREEMENT`
-    (:class:`ErrorEstimate`); ``nonfinite``: pixels holding NaN or inf; ``seed``: the Mitsuba
-    seed of the last pass.
+    ``estimated_relmse``: NaN before :data:`MIN_PASSES` passes; ``halves_ratio``, ``floored`` and
+    ``trusted``: as in :class:`ErrorEstimate`; ``nonfinite``: pixels holding NaN or inf; ``seed``:
+    the Mitsuba seed of the last pass.
     """
 
     passes: int
@@ -196,6 +205,7 @@ class PassStats:
     height: int
     seed: int = 0
     halves_ratio: float = math.nan
+    floored: float = math.nan
     trusted: bool = False
     nonfinite: int = 0
 
@@ -219,9 +229,10 @@ class ErrorEstimate:
 
     ``relmse``: the estimated relMSE (NaN before :data:`MIN_PASSES` passes or without a finite
     pixel); ``halves``: the two halves' errors per spp ``(e_A, e_B)``; ``halves_ratio``: ``max /
-    min`` of those (1 when both are 0, inf when one is); ``trusted``: an estimate whose halves
-    agree within :data:`HALVES_AGREEMENT`;
-    ``nonfinite``: pixels with a NaN or inf colour value (left out).
+    min`` of those (1 when both are 0, inf when one is); ``trusted``: the halves agree within
+    :data:`HALVES_AGREEMENT` and at most :data:`FLOORED_SHARE` of the estimate is ``floored``
+    (from pixels held at the floor ``(m / 64)^2``, :data:`FIREFLY_RANGE`); ``nonfinite``: pixels
+    with a NaN or inf colour value (left out).
     """
 
     relmse: float
@@ -229,6 +240,7 @@ class ErrorEstimate:
     halves_ratio: float
     trusted: bool
     nonfinite: int
+    floored: float = math.nan
 
 
 #: The 3x3 neighbourhood without its centre (:meth:`Accumulator.estimate`).
@@ -298,7 +310,8 @@ class Accumulator:
             new.m2 = dr.zeros(type(x), x.shape)
         else:   # Welford: M2 += n (x - mean_before) (x - mean_after)
             new.m2 = self.m2 + dr.opaque(f64, float(spp)) * (x - self.mean) * (x - new.mean)
-        dr.eval(new.m2, *new._combined())
+        dr.eval(quarters[k][0], new.m2, *new._combined())
+        dr.sync_thread()   # done reading the image: a caller's numpy array may change from now on
         return new
 
     @property
@@ -363,8 +376,9 @@ class Accumulator:
 
         from pointillist.imaging.filters import correlate
 
+        none = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0, math.nan)
         if self.passes == 0:
-            return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0)
+            return none
         height, width, depth = (self.shape + (1,))[:3]
         c = max(min(int(channels), depth), 1)
 
@@ -372,17 +386,11 @@ class Accumulator:
             return (t[..., :c] if c < depth else t).array
 
         m = colour(self.mean)
-        finite = dr.isfinite(m)
-        bad = dr.select(finite, 0.0, 1.0)          # pixels with any non-finite channel
-        pixel = dr.arange(mi.UInt32, height * width) * c
-        any_bad = dr.gather(type(bad), bad, pixel)
-        for k in range(1, c):
-            any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, pixel + k))
-        nonfinite = int(dr.sum(any_bad)[0])
-        variance = self.quarters_variance()
-        if self.passes < MIN_PASSES or variance is None or nonfinite == height * width:
-            return ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, nonfinite)
         f64 = type(m)
+        finite = dr.isfinite(m)
+        variance = self.quarters_variance()
+        if self.passes < MIN_PASSES or variance is None:
+            return dataclasses.replace(none, nonfinite=self._nonfinite_pixels(finite, height * width, c))
         v = dr.select(finite, colour(variance), 0.0)
         m = dr.select(finite, m, 0.0)
         # the mean of the 8 neighbours (the border pixels repeated outward)
@@ -390,22 +398,43 @@ class Accumulator:
         n = f64(around.array) * (1.0 / 8.0)
         square = m * m
         own = dr.maximum(square - v, 0.0)
-        d = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
-        d = dr.maximum(d, square * (1.0 / FIREFLY_RANGE ** 2))
-        inverse = dr.select(finite, 1.0 / (d + RELMSE_EPSILON), 0.0)
-        count = 1.0 / max(height * width * c - int(dr.count(~finite)[0]), 1)
-        sums = [dr.sum(v * inverse) * dr.opaque(f64, count)]
+        local = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
+        floor = square * (1.0 / FIREFLY_RANGE ** 2)
+        inverse = dr.select(finite, 1.0 / (dr.maximum(local, floor) + RELMSE_EPSILON), 0.0)
+        terms = [v * inverse, dr.select(floor > local, v * inverse, 0.0), dr.select(finite, 0.0, 1.0)]
         for a, b in ((0, 1), (2, 3)):   # each half's variance per spp from its two quarters
             (m_a, w_a, _), (m_b, w_b, _) = self.quarters[a], self.quarters[b]
-            spread = dr.select(finite, dr.square(colour(m_a) - colour(m_b)), 0.0)
-            sums.append(dr.sum(spread * inverse) * dr.opaque(f64, count * w_a * w_b / (w_a + w_b)))
+            terms.append(dr.select(finite, dr.square(colour(m_a) - colour(m_b)), 0.0) * inverse
+                         * dr.opaque(f64, w_a * w_b / (w_a + w_b)))
+        dr.eval(*terms)       # one kernel; the sums below read its results
+        sums = [dr.sum(t) for t in terms]
         dr.eval(*sums)
-        relmse, e_a, e_b = (float(s[0]) for s in sums)
+        total, floored, bad, e_a, e_b = (float(s[0]) for s in sums)
+        nonfinite = self._nonfinite_pixels(finite, height * width, c) if bad else 0
+        values = height * width * c - bad
+        if values == 0:
+            return dataclasses.replace(none, nonfinite=nonfinite)
+        total, floored, e_a, e_b = total / values, floored / values, e_a / values, e_b / values
         if max(e_a, e_b) == 0:
             ratio = 1.0
         else:
             ratio = max(e_a, e_b) / min(e_a, e_b) if min(e_a, e_b) > 0 else math.inf
-        return ErrorEstimate(relmse, (e_a, e_b), ratio, ratio <= HALVES_AGREEMENT, nonfinite)
+        share = floored / total if total > 0 else 0.0
+        return ErrorEstimate(total, (e_a, e_b), ratio, ratio <= HALVES_AGREEMENT and share <= FLOORED_SHARE,
+                             nonfinite, share)
+
+    @staticmethod
+    def _nonfinite_pixels(finite, pixels: int, channels: int) -> int:
+        """Pixels with a non-finite value in any of their ``channels`` (``finite``: per value)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        bad = dr.select(finite, 0.0, 1.0)
+        first = dr.arange(mi.UInt32, pixels) * channels
+        any_bad = dr.gather(type(bad), bad, first)
+        for k in range(1, channels):
+            any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, first + k))
+        return int(dr.sum(any_bad)[0])
 
     def estimated_relmse(self, channels: int = 3) -> float:
         """The estimated relMSE alone (:meth:`estimate`; NaN before :data:`MIN_PASSES` passes)."""
@@ -458,13 +487,16 @@ class Budget:
     seconds : float, optional
         Stop when the render seconds (:attr:`PassStats.seconds`) reach this, or when less than
         one spp fits in the time left; the last passes shrink (halving their spp) to end close
-        to it. At least one pass always runs.
+        to it, and auto passes leave room for ``min_passes`` passes (an estimate) where the time
+        allows. At least one pass always runs.
     target_error : float, optional
         Stop when the estimated relMSE is at most this and trusted (checked from ``min_passes``
-        on; :class:`ErrorEstimate`). Auto passes take 1 spp until the first estimate, then no
-        more than the 1/spp law says is still needed (rounded down to a power of two), so the
-        render stops close to the target; while the estimate is not trusted, at least a quarter
-        of the spp so far. Without ``seconds`` and ``spp``, a target that a trusted estimate
+        on; :class:`ErrorEstimate`). Auto passes take 1 spp until the first estimate, then at
+        most a quarter of the spp so far (so that the four quarters of the passes stay within
+        2x of each other: a firefly in a quarter holding more than its share is under-counted)
+        and, while the estimate is trusted, no more than the 1/spp law says is still needed
+        (rounded down to a power of two), so the render stops close to the target. Without
+        ``seconds`` and ``spp``, a target that a trusted estimate
         puts beyond 2^32 - 1 spp raises a :class:`~pointillist.errors.UsageError` (it would run
         for ever), and so does an image whose every pixel is NaN or inf (no estimate).
     spp : int, optional
@@ -571,15 +603,19 @@ class Budget:
             n = 1 << max(round(math.log2(max(target / rate, 1.0))), 0)  # nearest power of two
         n = min(n, largest)
         if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(stats.estimated_relmse):
-            needed = stats.spp * stats.estimated_relmse / self.target_error - stats.spp
-            if not stats.trusted:   # below the target but not trusted: grow by a quarter, then check again
-                needed = max(needed, stats.spp / 4)
-            n = min(n, _pow2_floor(max(int(math.ceil(needed)), 1)))  # approach it from below
+            if self.pass_spp is None:   # a quarter of the spp so far at most: the quarters stay within 2x
+                n = min(n, _pow2_floor(max(stats.spp // 4, 1)))
+            if stats.trusted:           # approach the target from below (the 1/spp law)
+                needed = stats.spp * stats.estimated_relmse / self.target_error - stats.spp
+                n = min(n, _pow2_floor(max(int(math.ceil(needed)), 1)))
         n = min(n, MAX_SAMPLES - stats.spp)
         if self.spp is not None and self.spp - stats.spp < n:
             left = self.spp - stats.spp
             n = left if left <= largest else _pow2_floor(left)
         fit = self._fitting_spp(stats)
+        if math.isfinite(fit) and self.pass_spp is None and stats.passes < self.min_passes:
+            # leave room for the passes an estimate needs (the first one, compiling, may take most of it)
+            n = min(n, _pow2_floor(max(int(fit / (self.min_passes - stats.passes)), 1)))
         if math.isfinite(fit) and int(fit + 0.5) < n:
             n = _pow2_floor(int(fit + 0.5))
         return int(n)
@@ -612,7 +648,7 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
                           pass_seconds=seconds, pass_compile_seconds=timing.compile,
                           compile_seconds=stats.compile_seconds + timing.compile, estimated_relmse=estimate.relmse,
                           width=stats.width, height=stats.height, seed=seed_k, halves_ratio=estimate.halves_ratio,
-                          trusted=estimate.trusted, nonfinite=estimate.nonfinite)
+                          floored=estimate.floored, trusted=estimate.trusted, nonfinite=estimate.nonfinite)
         yield acc, stats, timing
 
 
@@ -937,7 +973,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
 def _history_row(stats: PassStats) -> tuple[float, ...]:
     """One row of :data:`HISTORY_COLUMNS`."""
     trusted = math.nan if stats.estimate_state == "none" else float(stats.trusted)
-    return (stats.passes, stats.seconds, stats.spp, stats.estimated_relmse, stats.halves_ratio, trusted)
+    return (stats.passes, stats.seconds, stats.spp, stats.estimated_relmse, stats.halves_ratio, stats.floored, trusted)
 
 
 def _warnings(stats: PassStats, first_nonfinite: int | None) -> list[str]:
@@ -948,34 +984,38 @@ def _warnings(stats: PassStats, first_nonfinite: int | None) -> list[str]:
         warnings.append(f"{stats.nonfinite} of {stats.width * stats.height} pixels are NaN or inf ({since}); "
                         "they stay so in the image and are left out of the error estimate")
     if stats.estimate_state == "untrusted":
-        warnings.append(f"the error estimate is not trusted: its two halves differ {stats.halves_ratio:.3g}x "
-                        f"(more than {HALVES_AGREEMENT:g}x), so rare bright paths dominate it and the true error "
-                        "may be far from it; render longer")
+        why = (f"its two halves differ {stats.halves_ratio:.3g}x (more than {HALVES_AGREEMENT:g}x)"
+               if not stats.halves_ratio <= HALVES_AGREEMENT else
+               f"{stats.floored:.0%} of it comes from single samples more than {FIREFLY_RANGE}x their pixel's "
+               "neighbourhood")
+        warnings.append(f"the error estimate is not trusted: {why}, so rare bright paths dominate it and the true "
+                        "error may be far from it; render longer")
     return warnings
 
 
 def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=()) -> list[Path]:
     """Write ``OUT.progress.csv`` and, with ``png``, ``OUT.progress.png``.
 
-    The CSV has one row per pass: ``pass, seconds, spp, estimated_relmse, halves_ratio,
+    The CSV has one row per pass: ``pass, seconds, spp, estimated_relmse, halves_ratio, floored,
     estimate_state`` (``none``, ``trusted`` or ``untrusted``; empty numbers where there is no
-    estimate). The plot shows the estimated relMSE against render seconds on log-log axes, trusted
-    estimates filled and untrusted ones hollow, with a line of slope -1 (error proportional to 1/t,
-    the Monte Carlo rate) through the last estimate. Returns the paths written.
+    estimate; :class:`ErrorEstimate`). The plot shows the estimated relMSE against render seconds
+    on log-log axes, trusted estimates filled and untrusted ones hollow, with a line of slope -1
+    (error proportional to 1/t, the Monte Carlo rate) through the last estimate. Returns the paths
+    written.
     """
     from pointillist.imaging.io import atomic_write, check_output_path, save_figure
 
     csv_path, png_path = progress_paths(out)
     check_output_path(csv_path, inputs)
     data = np.asarray(history, np.float64).reshape(-1, len(HISTORY_COLUMNS))
-    states = np.where(np.isnan(data[:, 5]), "none", np.where(data[:, 5] > 0, "trusted", "untrusted"))
+    states = np.where(np.isnan(data[:, 6]), "none", np.where(data[:, 6] > 0, "trusted", "untrusted"))
 
     def number(x: float, fmt: str) -> str:
         return "" if not math.isfinite(x) else format(x, fmt)
 
-    rows = [",".join(HISTORY_COLUMNS[:5] + ("estimate_state",))] + [
-        f"{int(k)},{t:.6f},{int(n)},{number(e, '.6g')},{number(q, '.4g')},{state}"
-        for (k, t, n, e, q, _), state in zip(data, states)]
+    rows = [",".join(HISTORY_COLUMNS[:6] + ("estimate_state",))] + [
+        f"{int(k)},{t:.6f},{int(n)},{number(e, '.6g')},{number(q, '.4g')},{number(f, '.3g')},{state}"
+        for (k, t, n, e, q, f, _), state in zip(data, states)]
     atomic_write(csv_path, lambda tmp: Path(tmp).write_text("\n".join(rows) + "\n"))
     written = [csv_path]
     if png:

@@ -289,6 +289,19 @@ def test_a_firefly_counts_the_same_in_a_small_pass_as_in_a_large_one(mi, rng):
     assert estimates[0] == pytest.approx(estimates[1], rel=0.25), estimates
 
 
+def test_the_accumulator_has_read_a_pass_image_when_add_returns(mi, rng):
+    """A pass given as a numpy-backed tensor (Dr.Jit reads an aligned array in place) is read before add returns:
+    changing the array afterwards changes nothing (the kernels, launched asynchronously, read it later)."""
+    passes = _firefly_passes(rng, passes=8, size=4)
+    copies = [p.copy() for p in passes]
+    acc = _accumulate(mi, passes)
+    for p in passes:
+        p[...] = np.nan
+    same = _accumulate(mi, copies)
+    assert acc.estimate() == same.estimate() and np.array_equal(acc.mean.numpy(), same.mean.numpy())
+    assert all(np.array_equal(q[0].numpy(), r[0].numpy()) for q, r in zip(acc.quarters, same.quarters))
+
+
 def test_halves_that_disagree_make_the_estimate_untrusted(mi, rng):
     """Smooth noise: the halves agree (ratio near 1, trusted). One firefly: its half's error per spp is far
     above the other's, so the estimate is not trusted until more passes make the halves agree again."""
@@ -425,6 +438,15 @@ def test_time_budget_passes_are_short_and_at_least_one_runs():
     assert len(first) == 1 and first[0].seconds > 2.0   # the compiling first pass alone is over budget
 
 
+def test_time_budget_leaves_room_for_the_passes_of_an_estimate():
+    """A first pass (compiling) that takes 60 % of the budget: the other passes shrink so that the render still
+    reaches MIN_PASSES passes, and an estimate (it ended after 3 passes without one on a loaded machine)."""
+    from pointillist.progressive import MIN_PASSES, Budget
+
+    history = _simulate(Budget(seconds=3.0), overhead=0.01, per_spp=0.004, compile_s=1.8, width=64, height=64)
+    assert len(history) >= MIN_PASSES and abs(history[-1].seconds - 3.0) <= 0.3, [s.pass_spp for s in history]
+
+
 def test_spp_budget_lands_exactly():
     from pointillist.progressive import Budget
 
@@ -447,7 +469,7 @@ def test_error_budget_stops_at_the_first_estimate_below_and_does_not_overshoot()
 
 
 def test_error_budget_does_not_stop_on_an_untrusted_estimate():
-    """Below the target but untrusted: passes of at least a quarter of the spp so far, no stop; trusted: stop."""
+    """Below the target but untrusted: no stop, passes of a quarter of the spp so far; trusted: stop."""
     from pointillist.progressive import Budget
 
     budget = Budget(target_error=0.01)
@@ -456,8 +478,10 @@ def test_error_budget_does_not_stop_on_an_untrusted_estimate():
     assert budget.stop_reason(stats) is None and budget(stats) == 16
     assert budget.stop_reason(replace(stats, trusted=True, halves_ratio=1.3)) == "error"
     assert budget(replace(stats, trusted=True, halves_ratio=1.3)) == 0
-    # above the target and untrusted: the 1/spp law's remaining spp (here 64 * (0.02 / 0.01 - 1) = 64)
-    assert budget(replace(stats, estimated_relmse=0.02)) == 64
+    # above the target: a quarter of the spp so far, or the 1/spp law's remaining spp if smaller and trusted
+    assert budget(replace(stats, estimated_relmse=0.02)) == 16
+    assert budget(replace(stats, estimated_relmse=0.0105, trusted=True)) == 4      # 64 * 0.05 = 3.2 -> 4
+    assert budget(replace(stats, estimated_relmse=0.0105, trusted=False)) == 16
 
 
 def test_time_budget_names_time_when_less_than_one_spp_fits():
