@@ -27,7 +27,7 @@ subtracted (``benchmarks/_references.py``, cached in ``benchmarks/.cache/``):
      four quarters (``sum_q W_q (m_q - m)^2 / (3 W)``); ``, floor``: the denominator at least
      ``(m / 64)^2``; ``, 1/9``: reliable where ``v <= m^2 / 9``;
    - ``pointillist``: :meth:`pointillist.progressive.Accumulator.estimate` (Dr.Jit) on the same passes
-     (= ``quarters, loo 3x3, floor, 1/9``).
+     (= ``quarters, loo 3x3, floor``).
 
    The last column of the halves row is the ratio of the two halves' errors per spp
    (``halves_ratio``; the estimate is trusted at 3 or less).
@@ -357,10 +357,14 @@ def report(along_rows, stop_rows, cost_rows, args, load_before, load_after, mi, 
             lines.append(f"| {r['label']} | `{r['budget']}` (seed {r['seed']}) | {r['stop']} | {r['spp']} "
                          f"({r['passes']}, {r['seconds']:.1f}) | {r['est']:.4g} ({r['state']}, {r['q']:.2f}) | "
                          f"{r['true']:.4g} | {_ratio(r['true'], r['est'])} | {r['load']:.1f} |")
+        def inside(rows):
+            return sum(r["est"] > 0 and 0.5 <= r["true"] / r["est"] <= 2 for r in rows)
+
+        trusted = [r for r in stop_rows if r["state"] == "trusted"]
         ratios = [r["true"] / r["est"] for r in stop_rows if r["est"] > 0]
-        inside = sum(0.5 <= x <= 2 for x in ratios)
-        lines += ["", f"{inside} of {len(stop_rows)} stops within 0.5-2 (ratios {min(ratios):.2f} to "
-                  f"{max(ratios):.2f}).", ""]
+        lines += ["", f"{inside(stop_rows)} of {len(stop_rows)} stops within 0.5-2 (ratios {min(ratios):.2f} to "
+                  f"{max(ratios):.2f}); {inside(trusted)} of the {len(trusted)} with a trusted estimate; "
+                  f"{sum(r['state'] == 'none' for r in stop_rows)} without an estimate.", ""]
     if cost_rows:
         lines += ["### Cost of estimating (per pass; median of rounds)", "",
                   "| image | estimate ms | accumulate one pass ms | estimate / 2-s auto pass |", "|---|---:|---:|---:|"]

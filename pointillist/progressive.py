@@ -29,16 +29,16 @@ benchmarks/estimator.py, whose error budgets start with passes of 1 spp).
 **Estimated relMSE** (the relMSE of :func:`pointillist.imaging.metrics.image_errors`, epsilon
 ``eps`` = :data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the
 expected squared error of a pixel is ``v``; the reference in the denominator is unknown. A pixel's
-own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/3
-(``v <= m^2 / 9``, :data:`RELIABLE_VARIANCE`; a rare path has then been found in three quarters or
-more), with the bias of ``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean
+own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/2
+(``v <= m^2 / 4``, :data:`RELIABLE_VARIANCE`; a rare path has then been found in three quarters, or
+in two unevenly), with the bias of ``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean
 may rest on a few rare, bright samples (a firefly) and say little about ``r`` (``m^2 - v`` is about
 0 after one firefly, ``m^2`` far above ``r^2``); the pixel takes the smaller of that and ``n^2``,
 ``n`` the mean of its
 8 neighbours (border pixels repeated outward), which its own firefly does not reach and which the
 fireflies found around it make an estimate of the local ``r``::
 
-    d = m^2 - v                                       where v <= m^2 / 9
+    d = m^2 - v                                       where v <= m^2 / 4
     d = max(min(max(m^2 - v, 0), n^2), (m / 64)^2)    elsewhere
     estimated_relmse = mean over finite pixels and colour channels of v / (d + eps)
 
@@ -107,9 +107,12 @@ __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOIN
 MIN_PASSES = 8
 
 #: A pixel's own mean stands for its reference where its variance (from the quarters) is at most
-#: ``RELIABLE_VARIANCE * mean^2``: relative standard error at most 1/3 (benchmarks/estimator.py: 1/3
-#: kept the hard scenes within 0.8-1.25 from 64 spp on, where 1/2 let them drift to 1.3-1.8).
-RELIABLE_VARIANCE = 1.0 / 9.0
+#: ``RELIABLE_VARIANCE * mean^2``: relative standard error at most 1/2. Rare hits spread evenly over
+#: 1, 2, 3, 4 quarters give 1, 1/3, 1/9, 0 x mean^2: reliable once a path has been found in three
+#: quarters, or in two unevenly. (benchmarks/estimator.py: 1/2 let the glass caustic drift to 1.3-1.4x
+#: low at 512-1024 spp; 1/9 kept a tiny light's glint, hit 4 times in 20000 spp, unreliable and
+#: the estimate 500x high.)
+RELIABLE_VARIANCE = 0.25
 
 #: An unreliable pixel's reference is taken to be at least its mean / FIREFLY_RANGE (one hit then
 #: claims at most FIREFLY_RANGE^2 times its relative variance). benchmarks/estimator.py: a glass

@@ -96,7 +96,7 @@ def _quarter_of_each_pass(weights):
 
 def _estimate_numpy(passes, weights=None):
     """The module docstring's estimate, written again with numpy and scipy (an independent check): the
-    variance of the mean from the four quarters, ``v / (d + eps)`` with ``d = m^2 - v`` where ``v <= m^2 / 9``,
+    variance of the mean from the four quarters, ``v / (d + eps)`` with ``d = m^2 - v`` where ``v <= m^2 / 4``,
     else ``max(min(max(m^2 - v, 0), n^2), (m / 64)^2)``, ``n`` the mean of the 8 neighbours (border: nearest)."""
     from scipy.ndimage import uniform_filter
 
@@ -108,7 +108,7 @@ def _estimate_numpy(passes, weights=None):
             for q in range(4)) / (3 * w.sum())
     n = (uniform_filter(m, size=(3, 3, 1), mode="nearest") * 9 - m) / 8
     own = np.maximum(m * m - v, 0)
-    d = np.where(v <= m * m / 9, own, np.maximum(np.minimum(own, n * n), (m / 64) ** 2))
+    d = np.where(v <= m * m / 4, own, np.maximum(np.minimum(own, n * n), (m / 64) ** 2))
     return (v / (d + 0.01)).mean()
 
 
@@ -123,7 +123,7 @@ def _accumulate(mi, passes, weights=None):
 
 def test_estimate_formula_by_hand(mi):
     """One pixel, 8 passes alternating 1 and 3. Welford: var of mean = (8 * 1 / 7) / 8 = 1/7. The passes go to
-    quarters 0 2 1 3 0 2 1 3, so the quarters' means are 1, 1, 3, 3: v = 4 * 2 * 1^2 / (3 * 8) = 1/3 <= 2^2 / 9,
+    quarters 0 2 1 3 0 2 1 3, so the quarters' means are 1, 1, 3, 3: v = 4 * 2 * 1^2 / (3 * 8) = 1/3 <= 2^2 / 4,
     and the pixel's own mean stands for the reference: d = 4 - 1/3."""
     from pointillist.progressive import MIN_PASSES, Accumulator
 
@@ -140,7 +140,7 @@ def test_estimate_formula_by_hand(mi):
 def test_estimate_of_a_firefly_by_hand(mi):
     """3x3 image of 0.5 everywhere; the centre gets 8 more in pass 0. The 8 passes go to quarters 0 2 1 3 0 2 1 3,
     so quarter 0 (passes 0 and 4) has mean 4.5 at the centre, the others 0.5: mean 1.5, v = (2 * 3^2 + 3 * 2 *
-    1^2) / (3 * 8) = 1 > 1.5^2 / 9 (unreliable), own m^2 - v = 1.25, the mean of its 8 neighbours 0.5:
+    1^2) / (3 * 8) = 1 > 1.5^2 / 4 (unreliable), own m^2 - v = 1.25, the mean of its 8 neighbours 0.5:
     d = max(min(1.25, 0.25), (1.5 / 64)^2) = 0.25, so the centre's term is 1 / 0.26 (the previous estimate,
     v / max(m^2 - v, m^2 / 4), said 1 / 1.26); the others are exact (v = 0)."""
     passes = [np.full((3, 3, 3), 0.5, np.float32) for _ in range(8)]
@@ -195,7 +195,7 @@ def test_the_estimate_never_falls_as_a_firefly_grows(mi, rng):
 
 def test_the_estimate_never_falls_as_more_passes_add_a_firefly(mi, rng):
     """Passes added one by one; passes 9, 12 and 13 each hold a firefly of 100 in the same pixel (they go to
-    quarters 2, 0 and 2: the pixel's own spread still calls it unreliable, v > m^2 / 9; its mean stays below 64x
+    quarters 2, 0 and 2: the pixel's own spread still calls it unreliable, v > m^2 / 4; its mean stays below 64x
     the reference). Each firefly pass raises the estimate; the previous estimate fell from the second on (4 ->
     0.8 per pixel). (Three fireflies in three quarters would make the pixel reliable: its own mean then stands
     for its reference, and the estimate falls.)"""
