@@ -23,8 +23,8 @@ The error estimate takes the variance of the mean from the spread between the qu
 W_q (m_q - m)^2 / (3 W)`` (unbiased for any split): a firefly found in a pass of ``n`` spp adds
 ``F^2 / n`` to Welford's ``M2`` but about ``F^2 / (W / 4)`` to the quarters', so the quarters' ``v``
 follows the error the firefly really adds, ``(F / W)^2``, while ``var_of_mean`` over-states it
-``W / ((K - 1) n)`` times when it fell in a small pass (measured: 50x on the sun scene of
-benchmarks/estimator.py, whose error budgets start with passes of 1 spp).
+``W / ((K - 1) n)`` times when it fell in a small pass (the passes of 1 spp an error budget starts
+with put the estimate of the sun scene of benchmarks/estimator.py 30-170x high from 16 spp on).
 
 **Estimated relMSE** (the relMSE of :func:`pointillist.imaging.metrics.image_errors`, epsilon
 ``eps`` = :data:`pointillist.imaging.metrics.RELMSE_EPSILON`, without the reference ``r``): the
@@ -115,9 +115,10 @@ MIN_PASSES = 8
 RELIABLE_VARIANCE = 0.25
 
 #: An unreliable pixel's reference is taken to be at least its mean / FIREFLY_RANGE (one hit then
-#: claims at most FIREFLY_RANGE^2 times its relative variance). benchmarks/estimator.py: a glass
-#: caustic at 8 spp needs about 40 (mean / reference of its firefly pixels); the glint of a tiny light
-#: in a mirror, hit once, is 8; 64 keeps the first within 1.4x and the second high, on the safe side.
+#: claims at most FIREFLY_RANGE^2 times its relative variance). benchmarks/estimator.py: the firefly
+#: pixels of the glass caustic at 8 spp have mean / reference about 40, the glint of the tiny light
+#: in the mirror sphere, hit once at 256-1024 spp, 8-16: 64 kept the first within 1.36x (16: 12x low)
+#: and the second 5-300x high, on the safe side (without a floor: 1e5-1e7x).
 FIREFLY_RANGE = 64
 
 #: An estimate more than this share of which comes from pixels held at that floor rests on single
@@ -125,9 +126,10 @@ FIREFLY_RANGE = 64
 FLOORED_SHARE = 0.5
 
 #: An error budget stops only when the two halves' errors per spp agree within this factor (each half
-#: is then within 1.5x of their mean). benchmarks/estimator.py: 1.0-1.7 on the scenes the estimate
-#: was tuned on and where it held on the hard ones, 2-2.7 on the Phong spheres of exponent 1000,
-#: 5-460 at 8-16 spp on the glass caustic and 4e6 at a sub-pixel light's first hit.
+#: is then within 1.5x of their mean). benchmarks/estimator.py: 1.0-1.7 on edges.xml and default.xml,
+#: up to 3 on the hard scenes where the estimate was within 0.5-2, 5-140 where a firefly or a newly
+#: found caustic sat in one half (glass caustic and Phong spheres at 8 spp, sun scene at 32-128 spp),
+#: 300-2600 at the first hits of a tiny light's glint.
 HALVES_AGREEMENT = 3.0
 
 #: Why a progressive render stopped (``stopped_by`` in the EXR header): the spp budget, the time
