@@ -31,12 +31,12 @@ with put the estimate of the sun scene of benchmarks/estimator.py 30-170x high f
 expected squared error of a pixel is ``v``; the reference in the denominator is unknown. A pixel's
 own mean ``m`` stands for it when the pixel is *reliable*, its relative standard error at most 1/2
 (``v <= m^2 / 4``, :data:`RELIABLE_VARIANCE`; a rare path has then been found in three quarters, or
-in two unevenly), with the bias of ``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel the mean
-may rest on a few rare, bright samples (a firefly) and say little about ``r`` (``m^2 - v`` is about
-0 after one firefly, ``m^2`` far above ``r^2``); the pixel takes the smaller of that and ``n^2``,
-``n`` the mean of its
-8 neighbours (border pixels repeated outward), which its own firefly does not reach and which the
-fireflies found around it make an estimate of the local ``r``::
+in two unevenly), with the bias of ``m^2`` removed (``E[m^2] = r^2 + v``). In an unreliable pixel
+the mean may rest on a few rare, bright samples (a firefly) and say little about ``r`` (``m^2 -
+v`` is about 0 after one firefly, ``m^2`` far above ``r^2``); the pixel takes the smaller of that
+and ``n^2``, ``n`` the mean of its 8 neighbours (border pixels repeated outward), which its own
+firefly does not reach and which the fireflies found around it make an estimate of the local
+``r``, but not less than ``(m / 64)^2``::
 
     d = m^2 - v                                       where v <= m^2 / 4
     d = max(min(max(m^2 - v, 0), n^2), (m / 64)^2)    elsewhere
@@ -44,14 +44,14 @@ fireflies found around it make an estimate of the local ``r``::
 
 A firefly then raises the estimate by about ``v / (n^2 + eps)``, as much as it raises the true
 error, up to 64 times the pixel's reference, and a second firefly in the same pixel raises it
-again. (The
-previous estimate, ``var_of_mean / (max(m^2 - var_of_mean, m^2 / 4) + eps)``, topped out near 4 per
-pixel whatever the firefly: 40-90x below the truth on a path-traced glass caustic at 8-32 spp.)
-The floor ``(m / 64)^2`` (:data:`FIREFLY_RANGE`) bounds what one hit of a feature smaller than a
-pixel may claim where its neighbours are dark (a glint of a small light in a mirror, hit once, is
-not known from a firefly); such pixels keep the estimate high, on the safe side, until they have
-been hit in three quarters. A path that no pass has found yet leaves no trace in its pixel; over an
-image, the pixels where it was found stand in for those where it was not.
+again. (The previous estimate, ``var_of_mean / (max(m^2 - var_of_mean, m^2 / 4) + eps)``, topped
+out near 4 per pixel whatever the firefly: 40-200x below the truth on a path-traced glass caustic
+at 8-32 spp.) The floor ``(m / 64)^2`` (:data:`FIREFLY_RANGE`) bounds what one hit of a feature
+smaller than a pixel may claim where its neighbours are dark (a glint of a small light in a
+mirror, hit once, is not known from a firefly); such pixels keep the estimate high, on the safe
+side, until they have been hit in three quarters. A path that no pass has found yet leaves no
+trace in its pixel; over an image, the pixels where it was found stand in for those where it was
+not.
 
 **Trust.** The estimate is reported from :data:`MIN_PASSES` passes on (before: NaN). It is
 *trusted* when the two halves agree on the error per spp and the estimate does not rest on single
@@ -96,11 +96,10 @@ from pointillist.distributed import file_digest
 from pointillist.errors import UsageError
 from pointillist.scene import MAX_SAMPLES, RenderTiming, scene_info, timed_render
 
-__all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "RELIABLE_VARIANCE",
-           "FIREFLY_RANGE", "FLOORED_SHARE",
-           "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed", "tea32", "PassStats", "ErrorEstimate", "Accumulator",
-           "Budget", "render_passes", "ProgressiveResult", "render_progressive", "write_progress", "checkpoint_path",
-           "progress_paths", "scene_fingerprint"]
+__all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "HISTORY_COLUMNS",
+           "RELIABLE_VARIANCE", "FIREFLY_RANGE", "FLOORED_SHARE", "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed",
+           "tea32", "PassStats", "ErrorEstimate", "Accumulator", "Budget", "render_passes", "ProgressiveResult",
+           "render_progressive", "write_progress", "checkpoint_path", "progress_paths", "scene_fingerprint"]
 
 #: Passes before the first error estimate (the spread of fewer passes is too noisy to use: at 4
 #: passes the estimate was off by up to 2x on small path-traced images, at 8 within 1.8x).
@@ -109,7 +108,7 @@ MIN_PASSES = 8
 #: A pixel's own mean stands for its reference where its variance (from the quarters) is at most
 #: ``RELIABLE_VARIANCE * mean^2``: relative standard error at most 1/2. Rare hits spread evenly over
 #: 1, 2, 3, 4 quarters give 1, 1/3, 1/9, 0 x mean^2: reliable once a path has been found in three
-#: quarters, or in two unevenly. (benchmarks/estimator.py: 1/2 let the glass caustic drift to 1.3-1.4x
+#: quarters, or in two unevenly. (benchmarks/estimator.py: 1/2 let the glass caustic drift to 1.1-1.4x
 #: low at 512-1024 spp; 1/9 kept a tiny light's glint, hit 4 times in 20000 spp, unreliable and
 #: the estimate 500x high.)
 RELIABLE_VARIANCE = 0.25
