@@ -302,6 +302,21 @@ def test_the_accumulator_has_read_a_pass_image_when_add_returns(mi, rng):
     assert all(np.array_equal(q[0].numpy(), r[0].numpy()) for q, r in zip(acc.quarters, same.quarters))
 
 
+def test_warnings_say_why_an_estimate_is_not_trusted_and_count_nonfinite_pixels():
+    from pointillist.progressive import _warnings
+
+    stats = _stats(passes=12, spp=96, estimated_relmse=0.01, halves_ratio=7.5, floored=0.1, trusted=False)
+    (line,) = _warnings(stats, None)
+    assert "not trusted: its two halves differ 7.5x (more than 3x)" in line
+    (line,) = _warnings(replace(stats, halves_ratio=1.2, floored=0.8), None)
+    assert "not trusted: 80% of it comes from single samples more than 64x their pixel's neighbourhood" in line
+    assert _warnings(replace(stats, halves_ratio=1.2, floored=0.1, trusted=True), None) == []
+    assert _warnings(replace(stats, estimated_relmse=math.nan), None) == []        # no estimate: nothing to say
+    nan_line, _ = _warnings(replace(stats, nonfinite=5), 3)
+    assert nan_line.startswith("5 of 4096 pixels are NaN or inf (from pass 3 on)")
+    assert "(in the resumed passes)" in _warnings(replace(stats, nonfinite=5, trusted=True), None)[0]
+
+
 def test_halves_that_disagree_make_the_estimate_untrusted(mi, rng):
     """Smooth noise: the halves agree (ratio near 1, trusted). One firefly: its half's error per spp is far
     above the other's, so the estimate is not trusted until more passes make the halves agree again."""
@@ -590,6 +605,12 @@ def test_cli_time_budget_writes_exr_metadata_layers_and_progress(tmp_path, cli, 
     assert np.all(np.diff(rows["spp"]) > 0)
     if meta["passes"] >= 8:
         assert rows["estimated_relmse"][-1] == pytest.approx(meta["estimated_relmse"], rel=1e-5)
+    lines = out.with_suffix(".progress.csv").read_text().splitlines()
+    assert lines[0] == "pass,seconds,spp,estimated_relmse,halves_ratio,floored,estimate_state"
+    states = [line.rsplit(",", 1)[1] for line in lines[1:]]
+    assert states[:7] == ["none"] * min(7, len(states)) and states[-1] == meta["estimate_state"]
+    assert meta["estimate_state"] in ("none", "trusted", "untrusted") and meta["nonfinite_pixels"] == 0
+    assert f"({meta['estimate_state']}), stopped by time" in proc.stdout
     assert layers["variance"].shape == (16, 16) and (layers["variance"] >= 0).all()
     assert out.with_suffix(".progress.png").stat().st_size > 1000 and out.with_suffix(".png").exists()
 
