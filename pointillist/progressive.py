@@ -451,12 +451,15 @@ class Accumulator:
         return mi.TensorXf(self.mean)
 
     # -- checkpoint I/O
-    #: The arrays of :meth:`to_numpy`: ``m2`` and, per quarter ``k``, ``q{k}_mean/weight/passes``.
+    #: The arrays :meth:`from_numpy` reads: ``m2`` and, per quarter ``k``, ``q{k}_mean/weight/passes``.
     KEYS = ("m2",) + tuple(f"q{k}_{name}" for k in range(4) for name in ("mean", "weight", "passes"))
 
     def to_numpy(self) -> dict[str, Any]:
+        """:data:`KEYS`, and the whole render's ``mean``, ``weight`` and ``passes`` (for checks)."""
         empty = np.zeros(self.shape or (0,), np.float64)
-        data = {"m2": empty if self.m2 is None else self.m2.numpy().astype(np.float64)}
+        data = {"m2": empty if self.m2 is None else self.m2.numpy().astype(np.float64),
+                "mean": empty if self.mean is None else self.mean.numpy().astype(np.float64),
+                "weight": np.int64(self.weight), "passes": np.int64(self.passes)}
         for k, (mean, weight, passes) in enumerate(self.quarters):
             data.update({f"q{k}_mean": empty if mean is None else mean.numpy().astype(np.float64),
                          f"q{k}_weight": np.int64(weight), f"q{k}_passes": np.int64(passes)})
@@ -971,7 +974,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     return ProgressiveResult(image=image, variance=variance, stats=stats, history=history, timing=timing,
                              interrupted=stop == "interrupted", stop=stop, resumed_from=resumed_from,
                              checkpoints=checkpoints, metadata=metadata,
-                             warnings=_warnings(stats, first_nonfinite))
+                             warnings=_warnings(stats, first_nonfinite, stop))
 
 
 def _history_row(stats: PassStats) -> tuple[float, ...]:
@@ -980,14 +983,15 @@ def _history_row(stats: PassStats) -> tuple[float, ...]:
     return (stats.passes, stats.seconds, stats.spp, stats.estimated_relmse, stats.halves_ratio, stats.floored, trusted)
 
 
-def _warnings(stats: PassStats, first_nonfinite: int | None) -> list[str]:
-    """The lines a finished render warns with: NaN/inf pixels, an estimate its halves do not confirm."""
+def _warnings(stats: PassStats, first_nonfinite: int | None, stop: str = "") -> list[str]:
+    """The lines a finished render warns with: NaN/inf pixels, an estimate that is not trusted (not after an
+    interruption: the render is known to be unfinished, and says so in one line)."""
     warnings = []
     if stats.nonfinite:
         since = "in the resumed passes" if first_nonfinite is None else f"from pass {first_nonfinite} on"
         warnings.append(f"{stats.nonfinite} of {stats.width * stats.height} pixels are NaN or inf ({since}); "
                         "they stay so in the image and are left out of the error estimate")
-    if stats.estimate_state == "untrusted":
+    if stats.estimate_state == "untrusted" and stop != "interrupted":
         why = (f"its two halves differ {stats.halves_ratio:.3g}x (more than {HALVES_AGREEMENT:g}x)"
                if not stats.halves_ratio <= HALVES_AGREEMENT else
                f"{stats.floored:.0%} of it comes from single samples more than {FIREFLY_RANGE}x their pixel's "

@@ -312,6 +312,7 @@ def test_warnings_say_why_an_estimate_is_not_trusted_and_count_nonfinite_pixels(
     assert "not trusted: 80% of it comes from single samples more than 64x their pixel's neighbourhood" in line
     assert _warnings(replace(stats, halves_ratio=1.2, floored=0.1, trusted=True), None) == []
     assert _warnings(replace(stats, estimated_relmse=math.nan), None) == []        # no estimate: nothing to say
+    assert _warnings(stats, None, "interrupted") == []     # an interrupted render says so in its one line
     nan_line, _ = _warnings(replace(stats, nonfinite=5), 3)
     assert nan_line.startswith("5 of 4096 pixels are NaN or inf (from pass 3 on)")
     assert "(in the resumed passes)" in _warnings(replace(stats, nonfinite=5, trusted=True), None)[0]
