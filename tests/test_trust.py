@@ -537,7 +537,7 @@ def _edit(path: Path, checksum: bool, stats: dict, **changes) -> None:
     ({"weight": np.int64(-8)}, {"spp": -8}, "8 passes of -8 spp"),
     ({"passes": np.int64(10**9)}, {"passes": 10**9}, "1000000000 passes of 8 spp"),
     ({"mean": "nan"}, {}, None),
-    ({"history": np.zeros((3, 4))}, {}, "3 rows of history"),
+    ({"history": "short"}, {}, "3 rows of history"),
 ], ids=["negative-weight", "absurd-passes", "nan-mean", "short-history"])
 def test_hand_edited_checkpoints_are_refused(mi, tmp_path, edit, stats, message, checksum):
     """Smaller defect: negative weights, NaN means and absurd pass counts were resumed (edited
@@ -547,11 +547,16 @@ def test_hand_edited_checkpoints_are_refused(mi, tmp_path, edit, stats, message,
 
     out = _checkpoint(mi, tmp_path)
     npz = out.with_suffix(".checkpoint.npz")
-    if edit.get("mean") == "nan":
+    if edit.get("mean") == "nan":  # the pixel NaN in the whole render's mean and in its quarter's
         with np.load(npz) as data:
-            mean = data["mean"].copy()
-        mean[1, 1, 0] = np.nan
-        edit = {"mean": mean}
+            edit = {name: data[name].copy() for name in data.files if name == "mean" or
+                    (name.startswith("q") and name.endswith("_mean") and data[name].ndim == 3)}
+        for mean in edit.values():
+            mean[1, 1, 0] = np.nan
+    if edit.get("history") == "short":
+        from pointillist.progressive import HISTORY_COLUMNS
+
+        edit = {"history": np.zeros((3, len(HISTORY_COLUMNS)))}
     _edit(npz, checksum, stats, **edit)
     if not checksum:
         match = "was changed or damaged after it was written"

@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     prog.add_argument("--time", type=positive_float, metavar="SECONDS", dest="time_budget",
                       help="render passes until SECONDS of rendering are spent")
     prog.add_argument("--target-error", type=positive_float, metavar="E",
-                      help="render passes until the estimated relMSE (epsilon 0.01, as in compare) is at most E")
+                      help="render passes until the estimated relMSE (epsilon 0.01, as in compare) is at most E "
+                           "and trusted (its two halves of passes agree)")
     prog.add_argument("--pass-spp", type=positive_int, metavar="N",
                       help="samples per pixel of each pass (default: powers of two, passes of about 2 s)")
     prog.add_argument("--variance-layer", action="store_true",
@@ -82,10 +83,13 @@ def run(args: argparse.Namespace) -> int:
               f"({done.recentring.reason}; EXR header origin_offset)")
     if done.progressive is not None:
         result, stats = done.progressive, done.progressive.stats
+        for warning in result.warnings:
+            print(f"pointillist render: warning: {warning}", file=sys.stderr)
         print(f"{info['width']}x{info['height']}, integrator {info['integrator']}, sampler {info['sampler']}: "
               f"{stats.spp} spp in {stats.passes} passes, {stats.seconds:.2f} s (JIT compile "
-              f"{stats.compile_seconds:.2f} s), estimated relMSE {stats.estimated_relmse:.4g}, stopped by "
-              f"{result.stop}" + (f" (resumed from {result.resumed_from} passes)" if result.resumed_from else ""))
+              f"{stats.compile_seconds:.2f} s), estimated relMSE {stats.estimated_relmse:.4g} "
+              f"({stats.estimate_state}), stopped by {result.stop}"
+              + (f" (resumed from {result.resumed_from} passes)" if result.resumed_from else ""))
         if result.interrupted:  # the passes done are written, but it is not done: 130 (Ctrl-C) / 143 (SIGTERM)
             from pointillist import signals
 
