@@ -103,15 +103,18 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
     assert path == "columns" and _same_bits(a, b)
 
 
-@pytest.mark.parametrize("nx", [64, 16, 10, 9])
-def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
-    # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x; rows of a
-    # multiple of 4 words are read 4 words a lane and load, nx = 10 one word at a time);
+@pytest.mark.parametrize("nx", [64, 16, 12, 10, 9])
+def test_half_word_and_float_reductions_equal_numpy(rng, mi, nx):
+    # nx even: packed float16 pairs, compared as 16-bit keys and (data without -0 or values below
+    # 2^-17) as float32 words; rows of 32, 8, 6 and 5 words are read 8, 8, 2 and 1 word a lane
+    # and load; 37 slices: a partial group of the axial slice streams (group=8).
     # nx odd: one float16 gather a voxel
-    from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+    from pointillist.plugins.integrators._mip_accel import (float_ordered, half_slices, reduce_columns,
+                                                            reduce_half_words)
 
-    vol = rng.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
+    vol = rng.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)
     storage = mi.Float16(vol.ravel())
+    assert float_ordered(vol.view(np.uint16))
     for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
         for mode, reduce in (("mip", np.max), ("minip", np.min)):
             expected = reduce(vol, axis=np_axis).astype(np.float32)
@@ -119,11 +122,54 @@ def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
             acc, seen = reduce_columns(storage, vol.shape, axis, mode, has_nan=False)
             np.testing.assert_array_equal(np.asarray(acc), expected)
             if nx % 2 == 0:
-                words = mi.UInt32(vol.view(np.uint32).ravel())
-                np.testing.assert_array_equal(np.asarray(reduce_half_keys(words, vol.shape, axis, mode, chunk=8)),
-                                              expected)
+                words = mi.UInt32(vol.view(np.uint32).ravel()) + 0  # Dr.Jit's own (aligned) memory
+                for floats in (False, True):
+                    for group in (8, 64):
+                        got = reduce_half_words(words, vol.shape, axis, mode, floats=floats, group=group,
+                                                slices=half_slices(words, vol.shape) if group == 8 else None)
+                        np.testing.assert_array_equal(np.asarray(got), expected)
     with pytest.raises(ValueError, match="even"):
-        reduce_half_keys(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
+        reduce_half_words(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
+
+
+def test_float_word_order_needs_no_negative_zero_and_no_tiny_values(mi):
+    # every pair of finite halves outside {-0, |x| < 2^-17} compares as float32 words like the keys;
+    # -0 and the tiny values are exactly what float_ordered refuses (they compare equal to 0 there)
+    from pointillist.plugins.integrators._mip_accel import float_ordered, reduce_half_words
+
+    bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
+    finite = bits[np.isfinite(bits.view(np.float16))]
+    safe = finite[((finite & 0x7F80) != 0) | (finite == 0)]
+    assert float_ordered(safe) and not float_ordered(np.array([0x8000], np.uint16))
+    assert not float_ordered(np.array([0x0001], np.uint16)) and not float_ordered(np.array([0x807F], np.uint16))
+    assert float_ordered(np.array([0x0080, 0x8080, 0x0000, 0x7BFF, 0xFBFF], np.uint16))
+    rng = np.random.default_rng(9)
+    vol = rng.choice(safe, size=(40, 3, 2048)).view(np.float16)  # every safe half, shuffled
+    words = mi.UInt32(vol.view(np.uint32).ravel()) + 0
+    for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
+        for mode, reduce in (("mip", np.max), ("minip", np.min)):
+            expected = reduce(vol.astype(np.float32), axis=np_axis).ravel()
+            keys = np.asarray(reduce_half_words(words, vol.shape, axis, mode, floats=False))
+            floats = np.asarray(reduce_half_words(words, vol.shape, axis, mode, floats=True))
+            assert np.array_equal(keys.view(np.uint32), expected.view(np.uint32))
+            assert np.array_equal(floats.view(np.uint32), expected.view(np.uint32))
+
+
+def test_integrator_compares_words_as_floats_only_where_exact(mi):
+    # int16 CT (integers less an integer offset): float-order words; float16 data holding -0 or
+    # values below 2^-17: integer keys; both equal the march bit for bit, on all three axes
+    ct = VOLUMES["pow2_int16"]
+    tiny = RNG.integers(-50, 50, (8, 6, 8)).astype(np.float16)
+    tiny[1, 2, 3], tiny[4, 0, 0], tiny[5, 5, 5] = -0.0, np.float16(2.0**-20), np.float16(-(2.0**-22))
+    tiny[:, :, 6] = np.float16(2.0**-24)  # a whole column of subnormals: its maximum is one of them
+    for volume, ordered in ((ct, True), (tiny, False)):
+        for view in ("axial", "coronal", "sagittal"):
+            for mode in ("mip", "minip"):
+                props = {"mode": mode, "interpolation": "nearest", "precision": "half"}
+                a, b, path = _project_both(mi, volume, props, view=view, native=True)
+                assert path == "columns" and _same_bits(a, b), (view, mode)
+        fast, _ = _pair(mi, volume, interpolation="nearest", precision="half")
+        assert fast._float_ordered() is ordered
 
 
 def test_half_keys_order_every_finite_float16(mi):

@@ -186,6 +186,8 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if self.patient_space:
             self._orient[:3, :3] = volume.directions
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
+        self._ordered = None  # whether half storage words compare as float32 (see _float_ordered)
+        self._words = None  # half storage as UInt32 words and its slice views (column reductions)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
         self._flat = None  # per-brick constant value, NaN where the brick is not constant
 
@@ -538,16 +540,34 @@ class MIPIntegrator(mi.SamplingIntegrator):
         value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
         return value, valid
 
+    def _float_ordered(self) -> bool:
+        """Whether the half storage's words compare as float32 (no -0, nothing below 2^-17 in
+        magnitude: ``_mip_accel.float_ordered``); computed once per volume. Integers stored exactly
+        (16-bit CT less its integer offset) are by construction; other data is scanned once."""
+        from pointillist.plugins.integrators._mip_accel import float_ordered
+
+        if self._ordered is None:
+            data = self.volume.data
+            if np.issubdtype(data.dtype, np.integer) and self._tex.exact:
+                self._ordered = True
+            else:
+                bits = self._storage().numpy().view(np.uint16).reshape(data.shape[0], -1)
+                self._ordered = all(float_ordered(bits[z:z + 64]) for z in range(0, len(bits), 64))
+        return self._ordered
+
     def _column_values(self, axis: int, *, reverse: bool, repeats: int):
         """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
-        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+        from pointillist.plugins.integrators._mip_accel import half_slices, reduce_columns, reduce_half_words
 
         shape = self.volume.data.shape
         storage = self._storage()
         finite = self.storage_finite()
         if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
-            words = mi.UInt32(storage.numpy().view(np.uint32))  # the same memory, two halves a word
-            values = reduce_half_keys(words, shape, axis, self.mode)
+            if self._words is None:  # the same memory, two halves a word; its slices kept for the next call
+                words = mi.UInt32(storage.numpy().view(np.uint32))
+                self._words = (words, half_slices(words, shape))
+            words, slices = self._words
+            values = reduce_half_words(words, shape, axis, self.mode, floats=self._float_ordered(), slices=slices)
             return values, dr.full(mi.UInt32, 1, dr.width(values))
         return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
                               has_nan=not finite)
