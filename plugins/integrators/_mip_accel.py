@@ -24,8 +24,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-__all__ = ["BRICK", "column_layout", "reduce_columns", "reduce_half_words", "half_slices", "float_ordered",
-           "brick_grid"]
+__all__ = ["BRICK", "HalfSampler", "column_layout", "reduce_columns", "reduce_half_words", "half_slices",
+           "float_ordered", "brick_grid"]
 
 #: Voxels per brick side of the skipping grid. 8 is the usual choice of empty-space skipping
 #: in GPU ray casters (e.g. Hadwiger et al., "Real-Time Volume Graphics", 2006, ch. 8): small
@@ -143,6 +143,77 @@ def _half_bits_to_float(bits):
     magnitude = dr.select(body < 0x0400, mi.Float(body) * 2.0**-24,
                           dr.reinterpret_array(mi.Float, (body << 13) + (112 << 23)))
     return dr.reinterpret_array(mi.Float, dr.reinterpret_array(mi.UInt32, magnitude) | ((bits & 0x8000) << 16))
+
+
+def _half_bits_to_float_normal(bits):
+    """:func:`_half_bits_to_float` for bits of +-0 or normal halves above 2^-17 (``float_ordered``
+    data): the magnitude bits shifted into a float32 and scaled by 2^112 (exact), no select."""
+    shifted = ((bits & 0x7FFF) << 13) | ((bits & 0x8000) << 16)
+    return dr.reinterpret_array(mi.Float, shifted) * 2.0**112
+
+
+class HalfSampler:
+    """Lookups in half-precision texture storage through 32-bit word gathers, the same float32 bits
+    as the texture's own ``eval``.
+
+    Dr.Jit gathers a float16 texel with a 16-bit gather, which x86 has no instruction for: LLVM
+    splits it into 16 scalar loads a packet, 8 times per trilinear lookup. Here the two texels
+    (x0, x0 + 1) of each of the 4 rows a lookup touches are one 32-bit word when x0 is even, and
+    the high half of one word and the low half of the next when it is odd: a hardware gather
+    (and a second one for the odd lanes). The arithmetic is the texture's
+    (``drjit/texture_impl.h``, ``tex_eval``, clamp wrapping): ``pos = fma(p, res, -0.5)``,
+    ``i = floor(pos)``, ``w1 = pos - i``, ``w0 = 1 - w1``, corner weights multiplied in x, y, z
+    order and accumulated with ``fma(texel, weight, out)`` over the corners in order; nearest:
+    ``i = floor(p res)``, the texel. Needs finite storage with an even voxel count (whole words).
+    """
+
+    def __init__(self, words, shape_xyz: tuple[int, int, int], *, nearest: bool, normal_only: bool):
+        self.words = words
+        self.shape = shape_xyz
+        self.nearest = nearest
+        self.to_float = _half_bits_to_float_normal if normal_only else _half_bits_to_float
+
+    def _pair(self, element, edge):
+        """Float16 bits of texels ``element`` and ``element + 1`` (the same texel where ``edge``)."""
+        first = dr.gather(mi.UInt32, self.words, element >> 1)
+        odd = (element & 1) != 0
+        low = dr.select(odd, first >> 16, first & 0xFFFF)
+        second = dr.gather(mi.UInt32, self.words, (element >> 1) + 1, odd & ~edge)
+        high = dr.select(edge, low, dr.select(odd, second & 0xFFFF, first >> 16))
+        return low, high
+
+    def __call__(self, p) -> mi.Float:
+        nx, ny, nz = self.shape
+        res = (nx, ny, nz)
+        if self.nearest:
+            i = [dr.clip(mi.Int32(dr.floor(p[k] * dr.opaque(mi.Float, float(res[k])))), 0, res[k] - 1)
+                 for k in range(3)]
+            element = mi.UInt32((i[2] * ny + i[1]) * nx + i[0])
+            word = dr.gather(mi.UInt32, self.words, element >> 1)
+            return self.to_float(dr.select((element & 1) != 0, word >> 16, word & 0xFFFF))
+        low, w = [], []
+        for k in range(3):
+            pos = dr.fma(p[k], dr.opaque(mi.Float, float(res[k])), -0.5)
+            i = mi.Int32(dr.floor(pos))
+            w1 = pos - mi.Float(i)
+            low.append(i)
+            w.append((1.0 - w1, w1))
+        x0 = dr.clip(low[0], 0, nx - 1)
+        edge = x0 == dr.clip(low[0] + 1, 0, nx - 1)
+        texels = [None] * 8
+        for bz in range(2):
+            z = dr.clip(low[2] + bz, 0, nz - 1)
+            for by in range(2):
+                y = dr.clip(low[1] + by, 0, ny - 1)
+                a, b = self._pair(mi.UInt32((z * ny + y) * nx + x0), edge)
+                texels[4 * bz + 2 * by], texels[4 * bz + 2 * by + 1] = a, b
+        out = dr.zeros(mi.Float, dr.width(p))
+        for corner in range(8):
+            weight = mi.Float(1.0)
+            for k in range(3):
+                weight = weight * w[k][(corner >> k) & 1]
+            out = dr.fma(self.to_float(texels[corner]), weight, out)
+        return out
 
 
 def _key_to_float(key):

@@ -188,6 +188,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
         self._ordered = None  # whether half storage words compare as float32 (see _float_ordered)
         self._words = None  # half storage as UInt32 words and its slice views (column reductions)
+        self._sampler = None  # the marches' texture lookup (see _lookup)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
         self._flat = None  # per-brick constant value, NaN where the brick is not constant
 
@@ -347,7 +348,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         t0, t1, hit = self._clip(o, d, ray.maxt, active)
         segments, dt = self._schedule(d, t0, t1, hit)
         count = mi.UInt32(segments) + dr.select(hit, 1, 0)
-        tex = self._tex.texture
+        lookup = self._lookup()
         nx, ny, nz = self.volume.shape_xyz
         cells = mi.Vector3i(grid[2], grid[1], grid[0])
         # texture coordinates -> brick coordinates, and brick size in texture coordinates
@@ -400,7 +401,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
                     seen += 1
                     k += 1
             else:
-                v = tex.eval(mi.Point3f(p))[0]
+                v = lookup(p)
                 ok = ~dr.isnan(v)
                 if dr.hint(maximum, mode="scalar"):
                     acc = dr.select(ok, dr.maximum(acc, v), acc)
@@ -555,18 +556,42 @@ class MIPIntegrator(mi.SamplingIntegrator):
                 self._ordered = all(float_ordered(bits[z:z + 64]) for z in range(0, len(bits), 64))
         return self._ordered
 
+    def _half_words(self):
+        """``(words, slices)``: the half storage as UInt32 words (the same memory, two voxels a word)
+        and its zero-copy z slices, made once per volume (needs an even voxel count)."""
+        from pointillist.plugins.integrators._mip_accel import half_slices
+
+        if self._words is None:
+            words = mi.UInt32(self._storage().numpy().view(np.uint32))
+            self._words = (words, half_slices(words, self.volume.data.shape))
+        return self._words
+
+    def _lookup(self):
+        """The texture lookup of the marches: ``p -> value`` (float32, the texture's bits).
+
+        Finite half storage with an even voxel count is read through 32-bit word gathers
+        (``_mip_accel.HalfSampler``: hardware gathers instead of 16-bit gathers that LLVM splits
+        into scalar loads); anything else through the texture itself."""
+        from pointillist.plugins.integrators._mip_accel import HalfSampler
+
+        if self._sampler is None:
+            tex = self._tex.texture
+            self._sampler = lambda p: tex.eval(mi.Point3f(p))[0]
+            if self._tex.precision == "half" and self.volume.data.size % 2 == 0 and self.storage_finite():
+                self._sampler = HalfSampler(self._half_words()[0], self.volume.shape_xyz,
+                                            nearest=self.interpolation == "nearest",
+                                            normal_only=self._float_ordered())
+        return self._sampler
+
     def _column_values(self, axis: int, *, reverse: bool, repeats: int):
         """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
-        from pointillist.plugins.integrators._mip_accel import half_slices, reduce_columns, reduce_half_words
+        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_words
 
         shape = self.volume.data.shape
         storage = self._storage()
         finite = self.storage_finite()
         if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
-            if self._words is None:  # the same memory, two halves a word; its slices kept for the next call
-                words = mi.UInt32(storage.numpy().view(np.uint32))
-                self._words = (words, half_slices(words, shape))
-            words, slices = self._words
+            words, slices = self._half_words()
             values = reduce_half_words(words, shape, axis, self.mode, floats=self._float_ordered(), slices=slices)
             return values, dr.full(mi.UInt32, 1, dr.width(values))
         return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
@@ -609,7 +634,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         average = self.mode == "average"
         count = mi.UInt32(segments) if average else mi.UInt32(segments) + dr.select(hit, 1, 0)
         shift = 0.5 if average else 0.0
-        tex = self._tex.texture
+        lookup = self._lookup()
         if self.mode == "mip":
             acc = dr.full(mi.Float, -dr.inf, dr.width(o))
         elif self.mode == "minip":
@@ -621,7 +646,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         while dr.hint(k < count, label="mip_march"):
             t = dr.fma(mi.Float(k) + shift, dt, t0)
             p = dr.fma(d, t, o)
-            v = tex.eval(mi.Point3f(p))[0]
+            v = lookup(p)
             ok = ~dr.isnan(v)
             if dr.hint(self.mode == "mip", mode="scalar"):
                 acc = dr.select(ok, dr.maximum(acc, v), acc)
