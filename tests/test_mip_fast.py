@@ -228,6 +228,30 @@ def test_marches_with_word_lookups_equal_texture_marches(mi, interpolation):
             assert _same_bits(*images), mode
 
 
+@pytest.mark.parametrize("shape", [(20, 17, 22), (8, 8, 8), (9, 16, 10), (1, 3, 2), (33, 5, 18)])
+def test_brick_grid_from_words_equals_the_numpy_grid(mi, rng, shape):
+    # the Dr.Jit brick grid over the stored halves: the same per-brick maxima and minima (dilated by
+    # one voxel, clipped at the faces, partial bricks at the far faces) as brick_grid of the data
+    from pointillist.imaging.volumes import volume_texture
+    from pointillist.plugins.integrators._mip_accel import brick_grid, brick_grid_words, float_ordered
+
+    data = rng.integers(-3000, 3000, shape).astype(np.int16)
+    data[0, 0, 0], data[-1, -1, -1] = 32000, -32000  # extremes on the corners (outside half's exact range)
+    for volume in (data, shepp_logan_phantom(shape)):
+        tex = volume_texture(Volume(volume), precision="half")
+        storage = tex.texture.tensor().array.numpy()
+        for brick in (8, 4):
+            upper, lower = brick_grid_words(mi.UInt32(storage.view(np.uint32)), shape, brick=brick,
+                                            normal_only=float_ordered(storage.view(np.uint16)))
+            if tex.exact:
+                expected = brick_grid(volume, brick=brick, offset=tex.offset)
+            else:
+                expected = brick_grid(storage.reshape(shape), brick=brick)
+            assert np.array_equal(upper, expected[0]) and np.array_equal(lower, expected[1])
+    with pytest.raises(ValueError, match="even x size"):
+        brick_grid_words(mi.UInt32(np.zeros(8, np.uint32)), (2, 2, 3))
+
+
 def test_half_keys_order_every_finite_float16(mi):
     from pointillist.plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
 

@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 
 __all__ = ["BRICK", "HalfSampler", "column_layout", "reduce_columns", "reduce_half_words", "half_slices",
-           "float_ordered", "brick_grid"]
+           "float_ordered", "brick_grid", "brick_grid_words"]
 
 #: Voxels per brick side of the skipping grid. 8 is the usual choice of empty-space skipping
 #: in GPU ray casters (e.g. Hadwiger et al., "Real-Time Volume Graphics", 2006, ch. 8): small
@@ -411,6 +411,56 @@ def reduce_half_words(words, shape_zyx, axis: int, mode: str, *, floats: bool = 
     if axis == 1:
         return _y_columns(words, shape_zyx, order)
     return _x_rows(words, shape_zyx, order)
+
+
+def brick_grid_words(words, shape_zyx, *, brick: int = BRICK, normal_only: bool = False):
+    """:func:`brick_grid` of finite half storage (``words``: its UInt32 view, even ``nx``), in one
+    Dr.Jit kernel: a lane per brick folds the ``brick + 2`` rows of ``brick + 2`` slices its
+    dilated box covers, ``brick / 2 + 2`` words a row (word gathers), into its max and min.
+
+    The values are the stored ones (storage units), so the result equals :func:`brick_grid` of the
+    data less the texture's offset when the storage is exact. ``normal_only``: the storage has no
+    -0 and no value below 2^-17 (:func:`float_ordered`; faster half conversion). Returns float64
+    ``(maximum, minimum)`` of shape ``(ceil(nz / brick), ceil(ny / brick), ceil(nx / brick))``.
+    """
+    nz, ny, nx = shape_zyx
+    if nx % 2 or brick % 2:
+        raise ValueError(f"brick_grid_words: needs an even x size and brick, got {nx} and {brick}")
+    grid = tuple(-(-n // brick) for n in shape_zyx)
+    bricks = grid[0] * grid[1] * grid[2]
+    to_float = _half_bits_to_float_normal if normal_only else _half_bits_to_float
+    lane = dr.arange(mi.UInt32, bricks)
+    bx = lane % grid[2]
+    by = (lane // grid[2]) % grid[1]
+    bz = lane // (grid[2] * grid[1])
+    x_first = mi.Int32(bx * brick) - 1  # the dilated box: [b brick - 1, (b + 1) brick] on each axis
+    y_first = mi.Int32(by * brick) - 1
+    z_first = mi.Int32(bz * brick) - 1
+    side = brick + 2
+    row_words = nx // 2
+    width = brick // 2 + 2  # words a row: x from b brick - 2 (one half outside) to (b + 1) brick + 1
+
+    def body(k, high, low):
+        z = z_first + mi.Int32(k // side)
+        y = y_first + mi.Int32(k % side)
+        row = (z >= 0) & (z < nz) & (y >= 0) & (y < ny)
+        first = mi.Int32(bx * (brick // 2)) - 1  # the row's first word
+        for j in range(width):
+            inside = row & (first + j >= 0) & (first + j < row_words)
+            word = dr.gather(mi.UInt32, words, mi.UInt32((z * ny + y) * row_words + first + j), inside)
+            for half in range(2):
+                x = x_first - 1 + 2 * j + half
+                use = row & (x >= x_first) & (x <= x_first + brick + 1) & (x >= 0) & (x < nx)
+                value = to_float((word >> 16) if half else (word & 0xFFFF))
+                high = dr.select(use & (value > high), value, high)
+                low = dr.select(use & (value < low), value, low)
+        return k + 1, high, low
+
+    rows = dr.opaque(mi.UInt32, side * side)
+    _, high, low = dr.while_loop((mi.UInt32(0), dr.full(mi.Float, -dr.inf, bricks), dr.full(mi.Float, dr.inf, bricks)),
+                                 lambda k, *bounds: k < rows, body, label="mip_brick_grid")
+    dr.eval(high, low)
+    return (high.numpy().astype(np.float64).reshape(grid), low.numpy().astype(np.float64).reshape(grid))
 
 
 def _dilated_block_reduce(array: np.ndarray, axis: int, brick: int, fn) -> np.ndarray:

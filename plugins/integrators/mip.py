@@ -264,16 +264,21 @@ class MIPIntegrator(mi.SamplingIntegrator):
         largest voxel by at most ``13 * 2^-24 * M`` (M = largest magnitude), so the bounds are
         widened by ``2^-16 * M`` and rounded outwards.
         """
-        from pointillist.plugins.integrators._mip_accel import BRICK, brick_grid
+        from pointillist.plugins.integrators._mip_accel import BRICK, brick_grid, brick_grid_words
 
         if self._bricks is None:
             tex = self._tex
-            if tex.precision == "half" and not tex.exact:
-                nz, ny, nx = self.volume.data.shape
-                source, offset = self._storage().numpy().reshape(nz, ny, nx), 0.0
+            nz, ny, nx = self.volume.data.shape
+            if tex.precision == "half" and nx % 2 == 0 and self.storage_finite() and self._float_ordered():
+                # from the stored halves on both cores (one Dr.Jit kernel; the same values: the
+                # storage holds the data less the offset, exactly or as the marches see it)
+                upper, lower = brick_grid_words(self._half_words()[0], (nz, ny, nx), brick=BRICK, normal_only=True)
             else:
-                source, offset = self.volume.data, tex.offset
-            upper, lower = brick_grid(source, brick=BRICK, offset=offset)
+                if tex.precision == "half" and not tex.exact:
+                    source, offset = self._storage().numpy().reshape(nz, ny, nx), 0.0
+                else:
+                    source, offset = self.volume.data, tex.offset
+                upper, lower = brick_grid(source, brick=BRICK, offset=offset)
             # flat bricks (every voxel a lookup can touch holds the same finite value c):
             # their samples are computed from c without reading voxels (see _flat_sample)
             flat = np.where((upper == lower) & np.isfinite(upper), upper, np.nan).astype(np.float32)
