@@ -471,25 +471,26 @@ class MIPIntegrator(mi.SamplingIntegrator):
         o, d = to_tex @ ray.o, to_tex @ ray.d
         maxt = mi.Float(ray.maxt)
         dr.eval(o, d, maxt)
-        on, dn, mn = np.asarray(o), np.asarray(d), np.asarray(maxt)
-        if on.ndim != 2 or on.shape[1] == 0:
+        if dr.width(maxt) == 0:
             return None
-        moving = np.flatnonzero(np.any(dn != 0, axis=1))
+        # reductions over the rays (Dr.Jit, both cores) rather than numpy copies of them
+        moving = [k for k in range(3) if bool(dr.any(d[k] != 0))]
         if len(moving) != 1:
             return None
-        a = int(moving[0])
-        if not (np.all(dn[a] == dn[a, 0]) and np.all(on[a] == on[a, 0]) and np.all(mn == mn[0])):
+        a = moving[0]
+        first_o, first_d, first_t = (float(values[0]) for values in (o[a], d[a], maxt))
+        if not bool(dr.all((d[a] == first_d) & (o[a] == first_o) & (maxt == first_t))):
             return None
         b, c = [k for k in range(3) if k != a]
         nx, ny, nz = self.volume.shape_xyz
         res = (nx, ny, nz)
         # one representative ray: inside across the axis, so its slab test equals every hit ray's
         rep_o = [0.5, 0.5, 0.5]
-        rep_o[a] = float(on[a, 0])
+        rep_o[a] = first_o
         rep_d = [0.0, 0.0, 0.0]
-        rep_d[a] = float(dn[a, 0])
+        rep_d[a] = first_d
         ro, rd = mi.Point3f(*rep_o), mi.Vector3f(*rep_d)
-        t0, t1, hit = self._clip(ro, rd, mi.Float(float(mn[0])))
+        t0, t1, hit = self._clip(ro, rd, mi.Float(first_t))
         segments, dt = self._schedule(rd, t0, t1, hit)
         average = self.mode == "average"
         dr.eval(t0, segments, dt, hit)
