@@ -268,6 +268,21 @@ def test_tiled_ray_order_gives_the_same_image(mi, monkeypatch, size):
         assert _same_bits(*images), view
 
 
+def test_frozen_axial_fold_replays_on_new_slices(mi, rng):
+    # the axial fold is recorded once per shape and replayed: new data of the same shape, another
+    # shape, mip and minip, keys and floats all give numpy's maxima and minima
+    from pointillist.plugins.integrators._mip_accel import half_slices, reduce_half_words
+
+    for shape in ((40, 6, 16), (40, 6, 16), (9, 4, 8), (40, 6, 16)):
+        vol = rng.integers(-2048, 2049, shape).astype(np.float16)
+        words = mi.UInt32(vol.view(np.uint32).ravel()) + 0
+        slices = half_slices(words, shape)
+        for mode, reduce in (("mip", np.max), ("minip", np.min)):
+            for floats in (False, True):
+                got = reduce_half_words(words, shape, 2, mode, floats=floats, slices=slices, group=8)
+                assert np.array_equal(np.asarray(got), reduce(vol, axis=0).astype(np.float32).ravel())
+
+
 def test_half_keys_order_every_finite_float16(mi):
     from pointillist.plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
 
