@@ -169,6 +169,60 @@ def verified_lanes() -> int:
     return lanes
 
 
+def _quantiser_step(tables: tuple[np.ndarray, np.ndarray, np.ndarray], eight_bit: bool):
+    """``(quantise, shown_type)``: ``quantise(v, valid) -> (q, shown)`` gives a step's level in the
+    working space (float64, the value its error is measured from) and as output (float32, or the
+    display value rounded half to even as ``UInt8``): the level k = the number of thresholds <= v.
+    The tables become opaque scalars (two levels) or small Dr.Jit arrays, once per call."""
+    thresholds, work, display = tables
+    levels = len(display)
+    shown_type = UInt8 if eight_bit else Float
+    if eight_bit:
+        display = np.rint(display)
+    if levels == 2:
+        level_k = dr.opaque(Float64, float(thresholds[0]))
+        work0, work1 = dr.opaque(Float64, float(work[0])), dr.opaque(Float64, float(work[1]))
+        value = int if eight_bit else float
+        disp0, disp1 = dr.opaque(shown_type, value(display[0])), dr.opaque(shown_type, value(display[1]))
+
+        def quantise(v: Float64, valid) -> tuple[Float64, Any]:
+            on = v >= level_k
+            return dr.select(on, work1, work0), dr.select(on, disp1, disp0)
+
+        return quantise, shown_type
+    threshold_table = Float64(thresholds)
+    work_table = Float64(work)
+    display_table = shown_type(display.astype(np.uint8 if eight_bit else np.float32))
+    search = [1 << b for b in reversed(range(max(1, (levels - 1).bit_length())))]
+
+    def quantise(v: Float64, valid) -> tuple[Float64, Any]:
+        k = dr.zeros(Int32, dr.width(v))
+        for jump in search:
+            candidate = k + jump
+            fits = candidate <= levels - 1
+            bound = dr.gather(Float64, threshold_table, candidate - 1, fits & valid)
+            k = dr.select(fits & (bound <= v), candidate, k)
+        return dr.gather(Float64, work_table, k, valid), dr.gather(shown_type, display_table, k, valid)
+
+    return quantise, shown_type
+
+
+def _next_band(t, y, slot, own, steps: Int32, slots: Int32, lanes: int, keep_own: bool = False):
+    """Advance a lane's step counter; at the end of a band (``steps`` steps) move it to its row in the
+    next band and the next free row of the error buffer, and forget its own row's errors (unless
+    ``keep_own``). Returns ``(t, y, slot, own)``."""
+    t = t + 1
+    wrap = t == steps
+    if own and not keep_own:
+        own = [dr.select(wrap, 0.0, o) for o in own]
+    nxt = slot + lanes
+    nxt = dr.select(nxt >= slots, nxt - slots, nxt)
+    slot = dr.select(wrap, nxt, slot)
+    y = dr.select(wrap, y + lanes, y)
+    t = dr.select(wrap, 0, t)
+    return t, y, slot, own
+
+
 #: Columns a lane diffuses per loop iteration in the blocked schedule: Dr.Jit's largest packet
 #: gather / scatter on the LLVM backend (8 values: one vector load or store per lane and a
 #: transpose, instead of one hardware gather or scatter per value and step).
@@ -203,8 +257,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
     lanes, slots = plan["lanes"], plan["slots"]
     if rows and (max(right.values()) > BLOCK or min(left.values()) < -BLOCK):
         raise ValueError("diffuse_wavefront: a kernel reaching more than 8 columns needs the column schedule")
-    thresholds, work, display = tables
-    levels = len(display)
+    quantise, shown_type = _quantiser_step(tables, eight_bit)
     blocks = width // BLOCK
     # block skew: row y - dy has finished block b + 1 when row y starts block b (iteration counts)
     skew = max([0] + [-(-2 // dy) for dy in rows])
@@ -222,9 +275,6 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
     start = (-raw.ctypes.data % 64) // 8
     memory = raw[start:start + slots * width]
     errors_in, errors_out = Float64(memory), Float64(memory)
-    shown_type = UInt8 if eight_bit else Float
-    if eight_bit:
-        display = np.rint(display)
     out = dr.empty(shown_type, height * width)
     packets = dr.llvm.ArrayXu8 if eight_bit else dr.llvm.ArrayXf
     source_packets = dr.llvm.ArrayXu8 if isinstance(values, UInt8) else dr.llvm.ArrayXf
@@ -236,16 +286,6 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
     T = dr.opaque(Int32, per_band)
     end = dr.opaque(Int32, total)
     delay = lane * skew + lead
-    if levels == 2:
-        level_k = dr.opaque(Float64, float(thresholds[0]))
-        work0, work1 = dr.opaque(Float64, float(work[0])), dr.opaque(Float64, float(work[1]))
-        value = int if eight_bit else float
-        disp0, disp1 = dr.opaque(shown_type, value(display[0])), dr.opaque(shown_type, value(display[1]))
-    else:
-        threshold_table = Float64(thresholds)
-        work_table = Float64(work)
-        display_table = shown_type(display.astype(np.uint8 if eight_bit else np.float32))
-    search = [1 << b for b in reversed(range(max(1, (levels - 1).bit_length())))]
 
     # loop state
     step = dr.zeros(Int32, lanes)
@@ -278,19 +318,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
                 v = v + full[r][k + o - low[dy]] * w
             for dx, w in own_w:
                 v = v + own[dx - 1] * w
-            if levels == 2:
-                on = v >= level_k
-                q = dr.select(on, work1, work0)
-                shown = dr.select(on, disp1, disp0)
-            else:
-                level = dr.zeros(Int32, lanes)
-                for jump in search:
-                    candidate = level + jump
-                    fits = candidate <= levels - 1
-                    bound = dr.gather(Float64, threshold_table, candidate - 1, fits & valid)
-                    level = dr.select(fits & (bound <= v), candidate, level)
-                q = dr.gather(Float64, work_table, level, valid)
-                shown = dr.gather(shown_type, display_table, level, valid)
+            q, shown = quantise(v, valid)
             e = dr.select(valid, v - q, 0.0)
             if own:
                 own = [e] + own[:-1]
@@ -300,15 +328,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
             dr.scatter(errors_out, dr.llvm.ArrayXf64(errors), UInt32(slot * NB + b), valid)
         dr.scatter(out, packets(shown_block), UInt32(y * NB + b), valid)
         windows = [block[BLOCK:] for block in full]
-        t = t + 1
-        wrap = t == T
-        if own:
-            own = [dr.select(wrap, 0.0, o) for o in own]
-        nxt = slot + lanes
-        nxt = dr.select(nxt >= S, nxt - S, nxt)
-        slot = dr.select(wrap, nxt, slot)
-        y = dr.select(wrap, y + lanes, y)
-        t = dr.select(wrap, 0, t)
+        t, y, slot, own = _next_band(t, y, slot, own, T, S, lanes)
         return step + 1, t, y, slot, windows, own
 
     dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
@@ -349,8 +369,7 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
         return _diffuse_blocks(values, height, width, plan, tables, clip, eight_bit)
     rows, right, left, order, own_w = plan["rows"], plan["right"], plan["left"], plan["order"], plan["own"]
     lanes, skew, prefetch, slots, stride = plan["lanes"], plan["skew"], plan["prefetch"], plan["slots"], plan["stride"]
-    thresholds, work, display = tables
-    levels = len(display)
+    quantise, shown_type = _quantiser_step(tables, eight_bit)
 
     steps_per_band = width + prefetch + skew * (lanes - 1)
     bands = -(-height // lanes)
@@ -363,9 +382,6 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
     # that every value is read at a later step than the one that wrote it.
     memory = np.zeros(channels * slots * stride, dtype=np.float64)
     errors_in, errors_out = Float64(memory), Float64(memory)
-    shown_type = UInt8 if eight_bit else Float
-    if eight_bit:
-        display = np.rint(display)
     out = dr.empty(shown_type, height * width * channels)
 
     lane = dr.arange(Int32, lanes * channels)
@@ -379,16 +395,6 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
     T = dr.opaque(Int32, steps_per_band)
     end = dr.opaque(Int32, total)
     buffer_base = channel * (S * B) + prefetch
-    if levels == 2:
-        level_k = dr.opaque(Float64, float(thresholds[0]))
-        work0, work1 = dr.opaque(Float64, float(work[0])), dr.opaque(Float64, float(work[1]))
-        value = int if eight_bit else float
-        disp0, disp1 = dr.opaque(shown_type, value(display[0])), dr.opaque(shown_type, value(display[1]))
-    else:
-        threshold_table = Float64(thresholds)
-        work_table = Float64(work)
-        display_table = shown_type(display.astype(np.uint8 if eight_bit else np.float32))
-    search = [1 << b for b in reversed(range(max(1, (levels - 1).bit_length())))]
 
     step = dr.zeros(Int32, lanes * channels)
     t = dr.zeros(Int32, lanes * channels)
@@ -420,34 +426,14 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
             v = v + windows[rows.index(dy)][o - left[dy]] * w
         for dx, w in own_w:
             v = v + own[dx - 1] * w
-        if levels == 2:
-            on = v >= level_k
-            q = dr.select(on, work1, work0)
-            shown = dr.select(on, disp1, disp0)
-        else:
-            k = dr.zeros(Int32, dr.width(v))
-            for jump in search:
-                candidate = k + jump
-                fits = candidate <= levels - 1
-                bound = dr.gather(Float64, threshold_table, candidate - 1, fits & valid)
-                k = dr.select(fits & (bound <= v), candidate, k)
-            q = dr.gather(Float64, work_table, k, valid)
-            shown = dr.gather(shown_type, display_table, k, valid)
+        q, shown = quantise(v, valid)
         e = dr.select(valid, v - q, 0.0)
         if rows:
             dr.scatter(errors_out, e, buffer_base + slot * B + px, valid)
         dr.scatter(out, shown, pixel, valid)
         if own:
             own = [e] + own[:-1]
-        t = t + 1
-        wrap = t == T
-        if own and not carry:
-            own = [dr.select(wrap, 0.0, o) for o in own]
-        nxt = slot + lanes
-        nxt = dr.select(nxt >= S, nxt - S, nxt)
-        slot = dr.select(wrap, nxt, slot)
-        y = dr.select(wrap, y + lanes, y)
-        t = dr.select(wrap, 0, t)
+        t, y, slot, own = _next_band(t, y, slot, own, T, S, lanes, keep_own=carry)
         return step + 1, t, y, slot, windows, own
 
     dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
