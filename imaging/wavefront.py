@@ -223,6 +223,15 @@ def _next_band(t, y, slot, own, steps: Int32, slots: Int32, lanes: int, keep_own
     return t, y, slot, own
 
 
+def _scan(state: tuple, end: Int32, body, out, label: str):
+    """Run a schedule's loop (state: step, t, y, slot, windows, own) for ``end`` steps, one kernel;
+    returns ``out`` (the output levels its body scatters) evaluated."""
+    dr.while_loop(state, lambda step, *rest: step < end, body, labels=("step", "t", "y", "slot", "windows", "own"),
+                  mode="symbolic", label=label)
+    dr.eval(out)
+    return out
+
+
 #: Columns a lane diffuses per loop iteration in the blocked schedule: Dr.Jit's largest packet
 #: gather / scatter on the LLVM backend (8 values: one vector load or store per lane and a
 #: transpose, instead of one hardware gather or scatter per value and step).
@@ -331,11 +340,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
         t, y, slot, own = _next_band(t, y, slot, own, T, S, lanes)
         return step + 1, t, y, slot, windows, own
 
-    dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
-                  labels=("step", "t", "y", "slot", "windows", "own"), mode="symbolic",
-                  label="error_diffusion_blocks")
-    dr.eval(out)
-    return out
+    return _scan((step, t, y, slot, windows, own), end, body, out, "error_diffusion_blocks")
 
 
 def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
@@ -436,8 +441,4 @@ def diffuse_wavefront(values: Float, height: int, width: int, channels: int,
         t, y, slot, own = _next_band(t, y, slot, own, T, S, lanes, keep_own=carry)
         return step + 1, t, y, slot, windows, own
 
-    dr.while_loop((step, t, y, slot, windows, own), lambda step, *rest: step < end, body,
-                  labels=("step", "t", "y", "slot", "windows", "own"), mode="symbolic",
-                  label="error_diffusion")
-    dr.eval(out)
-    return out
+    return _scan((step, t, y, slot, windows, own), end, body, out, "error_diffusion")
