@@ -268,9 +268,9 @@ def test_tiled_ray_order_gives_the_same_image(mi, monkeypatch, size):
         assert _same_bits(*images), view
 
 
-def test_frozen_axial_fold_replays_on_new_slices(mi, rng):
-    # the axial fold is recorded once per shape and replayed: new data of the same shape, another
-    # shape, mip and minip, keys and floats all give numpy's maxima and minima
+def test_axial_fold_on_new_slices_and_shapes(mi, rng):
+    # repeated axial folds (the kernels are reused): new data of the same shape, another shape, mip
+    # and minip, keys and floats all give numpy's maxima and minima
     from pointillist.plugins.integrators._mip_accel import half_slices, reduce_half_words
 
     for shape in ((40, 6, 16), (40, 6, 16), (9, 4, 8), (40, 6, 16)):

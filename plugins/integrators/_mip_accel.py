@@ -335,18 +335,6 @@ def _z_columns(slices: list, order: _WordOrder, group: int):
     return _interleaved(order.values(state), dr.width(state[0]))
 
 
-def _fold_slices(slices: list, floats: bool, mode: str, group: int):
-    """:func:`_z_columns` with the order given by value (the frozen function's inputs)."""
-    return _z_columns(slices, _WordOrder(floats, mode), group)
-
-
-#: :func:`_fold_slices` frozen (``dr.freeze``): traced once per slice count and size, order, mode and
-#: group, then replayed on new slices without tracing 512 slices' operations in Python again (2-10 ms
-#: a call). The slice size is part of the key: the output size is a literal of the recording.
-_fold_slices_frozen = dr.freeze(_fold_slices, state_fn=lambda slices, *rest: (len(slices), dr.width(slices[0])),
-                                limit=16)
-
-
 def _y_columns(words, shape_zyx, order: _WordOrder):
     """y columns (coronal): a lane takes a packet of a row's words in one slice and folds it down
     the rows; returns the column values (z, x) in column order."""
@@ -419,7 +407,7 @@ def reduce_half_words(words, shape_zyx, axis: int, mode: str, *, floats: bool = 
         raise ValueError(f"mode: expected 'mip' or 'minip', got {mode!r}")
     order = _WordOrder(floats, mode)
     if axis == 2:
-        return _fold_slices_frozen(half_slices(words, shape_zyx) if slices is None else slices, floats, mode, group)
+        return _z_columns(half_slices(words, shape_zyx) if slices is None else slices, order, group)
     if axis == 1:
         return _y_columns(words, shape_zyx, order)
     return _x_rows(words, shape_zyx, order)
