@@ -200,16 +200,15 @@ NOTES = [
     "LLVM scalarises a gather of 8-bit elements, so the byte values are gathered from a 32-bit table (hardware "
     "vpgatherdd) and narrowed. The point operations' byte tables are cached by their parameters (a repeated call "
     "is one launch), as OpenCV users prepare the table once.",
-    "- equalize_histogram (uint8): the histogram kernel (bytes read as 32-bit words, bytes (0, 1) and (2, 3) of a "
-    "word index a 65,536-entry pair table: 2 scatter-adds per 4 pixels into per-thread copies, Dr.Jit's Expand mode), "
-    "the pair table folded into 256 bins and the SPEC's table computed on the host (one 256 KiB read-back; issue 32: "
-    "was four more launches and reductions), then the look-up kernel. What bounds it: the histogram row alone costs "
-    "about what cv2.equalizeHist does in total. A Dr.Jit scatter-add with possible duplicates in a SIMD packet is a "
-    "loop over the 16 lanes with a horizontal reduction per distinct address (about 12 instructions a lane), where "
-    "OpenCV's calcHist_8u makes one plain increment a pixel into 4 interleaved sub-histograms; lane-private tables "
-    "updated by gather + add + scatter were measured no faster (a scatter and a gather a pixel, stalled when a value "
-    "repeats). Lifting it needs a histogram primitive Dr.Jit does not offer (per-thread sub-histograms with plain "
-    "increments), i.e. a small native kernel called on the bytes.",
+    "- equalize_histogram (uint8): the histogram kernel, then the 256 bins' table on the host, then the look-up "
+    "kernel (issue 32: was a pair table with four more launches and reductions). The histogram (issue 32): each "
+    "work block of 16384 lanes counts into its own 256 x 16 table, each SIMD lane into its own column (a gather, "
+    "an add and a scatter a byte: no two lanes or threads share a counter), where Dr.Jit's scatter-add must check "
+    "a packet's 16 addresses for equal ones (a 16-step loop with a horizontal add when they differ, as in a pair "
+    "table); a lost update could only lower the total, which is checked. What bounds it: the gathers and scatters "
+    "(about 40 cycles for a packet's 16 counters here), against one plain increment a pixel in OpenCV's "
+    "calcHist_8u on one core; the look-up pass then costs about what OpenCV's does. Lifting it further needs a "
+    "histogram primitive Dr.Jit does not offer (plain scalar increments per thread), i.e. a small native kernel.",
     "- Timings on this shared 2-core VM are quantised by preemption: a 0.5 ms Dr.Jit kernel sometimes takes 15 ms "
     "(one of its two worker threads descheduled), while 1-thread OpenCV runs on the calling thread: medians are "
     "reported with minima beside them; the minima are the machine's undisturbed cost.",

@@ -482,17 +482,74 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
 _PAIR_LEVELS = 256
 
 
+#: Lanes of a Dr.Jit work block on the LLVM backend once a kernel has more than 2 x 16384 lanes a core:
+#: the blocks are then lanes [16384 b, 16384 (b + 1)) and each runs on one thread at a time.
+_BLOCK = 16384
+
+
+def _byte_histogram(words: UInt32, tail: UInt32 | None, region: int = _BLOCK) -> np.ndarray | None:
+    """256-bin histogram of bytes packed in ``words`` (+ ``tail``) with plain increments into private
+    sub-histograms, or None when that cannot be used (too few words) or was not exact.
+
+    Each work block of :data:`_BLOCK` lanes has its own table, each lane of a 16-wide SIMD packet its own
+    column of it (bin-major, so the 16 lanes' counters of one bin share a cache line): a gather, an add
+    and a scatter a byte, with no two lanes of a packet and no two threads ever updating the same counter,
+    instead of a scatter-add whose lanes must be checked for equal addresses (a 16-step loop a packet).
+    The tables are read and written through two Dr.Jit arrays over the same memory. Exactness does not
+    rest on the block layout: a lost update (two writers, or a read reordered before a write) can only
+    lower the total, so a total other than the byte count rejects the result. ``region``: lanes sharing
+    a table (the block size; a test shares one table between threads to see the check refuse).
+    """
+    cores = max(1, dr.thread_count())
+    count = dr.width(words)
+    lanes = _BLOCK * max(8, 2 * cores + 1)  # past the regime where Dr.Jit sizes blocks by the core count
+    if count < lanes:
+        return None
+    blocks = -(-lanes // region)
+    raw = np.zeros(blocks * 4096 + 16, dtype=np.uint32)
+    start = (-raw.ctypes.data % 64) // 4
+    memory = raw[start:start + blocks * 4096]
+    table_in, table_out = UInt32(memory), UInt32(memory)
+    lane = dr.arange(UInt32, lanes)
+    base = (lane // region) * 4096 + lane % 16
+    total = dr.opaque(UInt32, count)
+    stride = dr.opaque(UInt32, lanes)
+    rounds = dr.opaque(UInt32, -(-count // lanes))
+
+    def body(k, index):
+        ok = index < total
+        word = dr.gather(UInt32, words, index, ok)
+        for byte in range(4):
+            slot = base + ((word >> (8 * byte)) & 0xFF) * 16
+            dr.scatter(table_out, dr.gather(UInt32, table_in, slot, ok) + 1, slot, ok)
+        return k + 1, index + stride
+
+    dr.while_loop((UInt32(0), UInt32(lane)), lambda k, index: k < rounds, body, mode="symbolic",
+                  label="byte_histogram")
+    dr.eval(table_out)
+    dr.sync_thread()
+    hist = memory.reshape(blocks, 256, 16).sum(axis=(0, 2), dtype=np.int64)
+    if tail is not None:
+        hist += np.bincount(tail.numpy(), minlength=256)[:256]
+    expected = 4 * count + (dr.width(tail) if tail is not None else 0)
+    return hist if int(hist.sum()) == expected else None
+
+
 def _histogram_of(bins: UInt8 | UInt32, words: UInt32 | None, tail: UInt32 | None, levels: int) -> np.ndarray:
-    """Histogram (``levels`` bins, int64) of the evaluated per-pixel ``bins`` via ``dr.scatter_add``.
+    """Histogram (``levels`` bins, int64) of the evaluated per-pixel ``bins``.
 
     For 8-bit bins (``levels`` <= 256) given as packed 32-bit ``words`` (four bins
-    each; ``tail`` the 0..3 bins after the last whole word), the bins are counted in
-    pairs: bytes (0, 1) and (2, 3) of each word index a 65,536-entry table, so each
-    lane makes 2 additions for 4 pixels, spread over many more entries than
-    ``levels`` (fewer collisions); the table is then summed both ways on the host (one
+    each; ``tail`` the 0..3 bins after the last whole word): private sub-histograms
+    (:func:`_byte_histogram`) where the image is large enough; else the bins are counted in
+    pairs with ``dr.scatter_add``: bytes (0, 1) and (2, 3) of each word index a 65,536-entry
+    table, 2 additions for 4 pixels, and the table is summed both ways on the host (one
     read-back of 256 KiB instead of four more kernel launches). Otherwise one addition per
     pixel into ``levels`` bins.
     """
+    if words is not None and levels <= _PAIR_LEVELS:
+        hist = _byte_histogram(words, tail)
+        if hist is not None:
+            return hist[:levels]
     if words is None:
         hist = dr.zeros(UInt32, levels)
         dr.scatter_add(hist, 1, UInt32(bins))
