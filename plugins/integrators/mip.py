@@ -337,7 +337,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ``lower >= acc``), all samples up to the ray's exit from that brick are skipped: each
         lies inside the brick's box (or within float rounding of it, far less than the one
         voxel of dilation), so its value is bounded and ``max(acc, v) == acc``. A brick of NaN
-        voxels only (bounds -inf / +inf) holds only NaN samples, which the march skips too.
+        voxels only (bounds -inf / +inf) holds only NaN samples, which the march skips too. A brick
+        that is not skipped takes two samples an iteration (k and k + 1 when k + 1 is still in the
+        run: one brick look-up for both; the second is taken even if the first already made the
+        brick idle, which cannot change the result).
 
         A *flat* brick (every voxel its lookups can touch holds one finite value c) is not
         skipped unless its bound allows it, but its samples are computed from c
@@ -411,14 +414,18 @@ class MIPIntegrator(mi.SamplingIntegrator):
                     seen += 1
                     k += 1
             else:
-                v = lookup(p)
-                ok = ~dr.isnan(v)
-                if dr.hint(maximum, mode="scalar"):
-                    acc = dr.select(ok, dr.maximum(acc, v), acc)
-                else:
-                    acc = dr.select(ok, dr.minimum(acc, v), acc)
-                seen += dr.select(ok, 1, 0)
-                k += 1
+                # sample k and, when the run has it, sample k + 1 (the same brick: one brick look-up
+                # for two samples; taking it even if sample k raised acc past the bound is harmless)
+                second = k + 1 < end
+                for j in range(2):
+                    v = lookup(p if j == 0 else dr.fma(d, dr.fma(mi.Float(k + 1), dt, t0), o))
+                    ok = ~dr.isnan(v) if j == 0 else ~dr.isnan(v) & second
+                    if dr.hint(maximum, mode="scalar"):
+                        acc = dr.select(ok, dr.maximum(acc, v), acc)
+                    else:
+                        acc = dr.select(ok, dr.minimum(acc, v), acc)
+                    seen += dr.select(ok, 1, 0)
+                k = dr.select(second, k + 2, k + 1)
         valid = seen > 0
         offset = dr.opaque(mi.Float, self._tex.offset)
         value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
