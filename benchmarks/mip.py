@@ -247,23 +247,32 @@ def part_c_child(n: int, rounds: int, before: str | None) -> None:
         sitk = None
     # the memory floor: one read of the stored volume on both cores (a Dr.Jit pass over the same slice
     # streams, one OR per word), and numpy's axial max split over two threads (halves of y)
-    words, slices = integrators["axial"]._half_words()
+    streams = integrators["axial"]._half_words()[1]
     from concurrent.futures import ThreadPoolExecutor
 
     pool = ThreadPoolExecutor(2)
 
-    def floor_pass():
+    def or_fold(arrays):
+        if len(arrays) <= _mip_accel.Z_GROUP:
+            acc = arrays[0]
+            for word in arrays[1:]:
+                acc = acc | word
+            return acc
         parts = []
-        for first in range(0, len(slices), _mip_accel.Z_GROUP):
-            acc = None
-            for word in slices[first:first + _mip_accel.Z_GROUP]:
-                acc = word if acc is None else acc | word
-            dr.eval(acc)
-            parts.append(acc)
-        acc = parts[0]
-        for part in parts[1:]:
-            acc = acc | part
-        dr.eval(acc)
+        for first in range(0, len(arrays), _mip_accel.Z_GROUP):
+            part = or_fold(arrays[first:first + _mip_accel.Z_GROUP])
+            dr.eval(part)
+            parts.append(part)
+        return or_fold(parts)
+
+    def floor_pass():  # the same streams as the axial fold, one OR per word
+        planes = list(streams.rest)
+        if streams.chunks:
+            folded = or_fold(streams.chunks)
+            dr.eval(folded)
+            flat = np.asarray(folded)
+            planes += [type(folded)(flat[i * streams.plane:(i + 1) * streams.plane]) for i in range(streams.stack)]
+        dr.eval(or_fold(planes))
         dr.sync_thread()
 
     def numpy_two():
@@ -376,11 +385,15 @@ AXIS_NOTES = """How (`plugins/integrators/_mip_accel.py`, `reduce_half_words`): 
 two at a time as 32-bit words. Where the storage has no -0 and nothing below 2^-17 in magnitude (16-bit CT less
 its integer offset, or checked once per volume), a word read as float32 orders like its high half and the word
 shifted left by 16 like its low half: one shift and two float compares a word instead of integer keys (about 9
-operations). Axial (z) columns fold the slices as contiguous zero-copy streams, 32 a kernel, into partial words
-that fold like slices; coronal (y) columns and sagittal (x) rows fold packets of 8 words a lane (one packet
-gather: a vector load per lane and a transpose), one kernel each. What is left above the floor: the tracing of
-the axial streams in Python (512 slices, 4 operations each, every call), the integrator's checks of the rays
-(`_columns`), and, for y and x, the transposes of the packet loads."""
+operations). Axial (z) columns fold zero-copy views of 8 slices each (folded like one slice 8 times as wide,
+so Python traces 64 folds, not 512) as contiguous streams, 64 a kernel (a 512-slice volume in one kernel),
+then the 8 planes; coronal (y) columns and sagittal (x) rows fold packets of 8 words a lane (one packet
+gather: a vector load per lane and a transpose), one kernel each. What is left above the floor: for the axial
+view the partials and the integrator's checks of the rays (`_columns`, a few small kernels); for y and x the
+transposes of the packet loads (a row-major volume reduced along y or x needs data moved across SIMD lanes:
+shuffles, or a hardware gather a word), which keep them at about 2.5x the floor. Lifting those needs 16-bit
+SIMD lanes reading the voxels as numpy does (a native kernel), or a second copy of the volume in another axis
+order (2x the memory)."""
 def part_d_child(kind: str, n: int, rounds: int) -> None:
     """Oblique MIP, ours vs VTK's fixed-point CPU ray caster; prints one JSON line."""
     import vtk

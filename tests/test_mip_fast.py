@@ -107,7 +107,7 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
 def test_half_word_and_float_reductions_equal_numpy(rng, mi, nx):
     # nx even: packed float16 pairs, compared as 16-bit keys and (data without -0 or values below
     # 2^-17) as float32 words; rows of 32, 8, 6 and 5 words are read 8, 8, 2 and 1 word a lane
-    # and load; 37 slices: a partial group of the axial slice streams (group=8).
+    # and load; 37 slices: chunks of 8, 4, 1 or no whole chunk (64) and the rest slices, 2-64 streams a kernel.
     # nx odd: one float16 gather a voxel
     from pointillist.plugins.integrators._mip_accel import (float_ordered, half_slices, reduce_columns,
                                                             reduce_half_words)
@@ -124,9 +124,9 @@ def test_half_word_and_float_reductions_equal_numpy(rng, mi, nx):
             if nx % 2 == 0:
                 words = mi.UInt32(vol.view(np.uint32).ravel()) + 0  # Dr.Jit's own (aligned) memory
                 for floats in (False, True):
-                    for group in (8, 64):
+                    for group, stack in ((8, 8), (64, 8), (2, 4), (3, 1), (4, 64)):  # chunks of slices + rest
                         got = reduce_half_words(words, vol.shape, axis, mode, floats=floats, group=group,
-                                                slices=half_slices(words, vol.shape) if group == 8 else None)
+                                                slices=half_slices(words, vol.shape, stack=stack))
                         np.testing.assert_array_equal(np.asarray(got), expected)
     with pytest.raises(ValueError, match="even"):
         reduce_half_words(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")

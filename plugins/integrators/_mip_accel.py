@@ -20,22 +20,31 @@ between calls are opaque.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-__all__ = ["BRICK", "HalfSampler", "column_layout", "reduce_columns", "reduce_half_words", "half_slices",
-           "float_ordered", "brick_grid", "brick_grid_words"]
+__all__ = ["BRICK", "HalfSampler", "SliceStreams", "column_layout", "reduce_columns", "reduce_half_words",
+           "half_slices", "float_ordered", "brick_grid", "brick_grid_words"]
 
 #: Voxels per brick side of the skipping grid. 8 is the usual choice of empty-space skipping
 #: in GPU ray casters (e.g. Hadwiger et al., "Real-Time Volume Graphics", 2006, ch. 8): small
 #: enough to hug structures, large enough that the grid (1/512 of the voxels) stays in cache.
 BRICK = 8
 
-#: Slices a kernel of the axial (z) reduction folds into a partial (then the partials are folded):
-#: each is a contiguous stream (one zero-copy array per slice, every lane reads its own word, no
-#: gather); 32 streams stay within what a core's hardware prefetchers follow.
-Z_GROUP = 32
+#: Slices an array of the axial (z) reduction holds: a zero-copy view of Z_STACK consecutive slices is
+#: folded like one slice (every lane reads its own word, no gather), so Python traces one operation per
+#: Z_STACK slices (512 slices: 64 folds instead of 512, about 3 ms less a call); the Z_STACK planes of
+#: the result are folded at the end.
+Z_STACK = 8
+
+#: Arrays a kernel of the axial reduction folds into a partial (then the partials are folded): each is
+#: a contiguous stream. 64 chunks of 8 slices: a 512-slice volume in one kernel (no partials); measured
+#: on a noisy 512^3 at load 3-4 against 16 and 32 a kernel: the lowest tenth percentile and minimum
+#: (24 / 10.5 ms; the floor, one read of the volume, 9-10 ms).
+Z_GROUP = 64
 
 #: Words a lane reads at once in the y and x reductions: one packet gather (Dr.Jit's PacketOps: a
 #: vector load per lane and a transpose instead of one hardware gather per word); 8 is the most
@@ -280,16 +289,30 @@ class _WordOrder:
         return [_half_bits_to_float(self.bits(value)) for value in state]
 
 
-def half_slices(words, shape_zyx) -> list:
-    """Zero-copy views of each z slice of half storage viewed as words (``words`` evaluated).
+class SliceStreams(NamedTuple):
+    """Zero-copy views of half storage viewed as words, for the axial fold: ``chunks`` of ``stack``
+    consecutive slices each (``stack * plane`` words) and the ``rest`` slices, one a view."""
 
-    The axial reduction reads them as contiguous streams; callers that reduce one volume
-    repeatedly keep the list (building 512 views costs about a millisecond)."""
+    chunks: list
+    rest: list
+    plane: int
+    stack: int
+
+
+def half_slices(words, shape_zyx, stack: int = Z_STACK) -> SliceStreams:
+    """:class:`SliceStreams` of ``words`` (evaluated) in chunks of ``stack`` slices.
+
+    A chunk is folded like one slice ``stack`` times as wide (one Dr.Jit operation for ``stack``
+    slices: the tracing cost of the axial fold is per chunk), and its ``stack`` planes are folded at
+    the end. Callers that reduce one volume repeatedly keep the views."""
     nz, ny, nx = shape_zyx
     plane = ny * nx // 2
     flat = np.asarray(words)  # the same memory (LLVM arrays are host memory)
     kind = type(words)
-    return [kind(flat[z * plane:(z + 1) * plane]) for z in range(nz)]
+    whole = nz // stack
+    chunks = [kind(flat[c * stack * plane:(c + 1) * stack * plane]) for c in range(whole)]
+    rest = [kind(flat[z * plane:(z + 1) * plane]) for z in range(whole * stack, nz)]
+    return SliceStreams(chunks, rest, plane, stack)
 
 
 def _packet_size(count: int) -> int:
@@ -316,23 +339,33 @@ def _interleaved(values: list, lanes: int):
     return out
 
 
-def _z_columns(slices: list, order: _WordOrder, group: int):
-    """z columns (axial): fold the slices as contiguous streams, ``group`` slices a kernel into a
-    partial (storage words), then the partials; returns the column values in column order."""
-    parts = []
-    for first in range(0, len(slices), group):
+def _fold_streams(arrays: list, order: _WordOrder, group: int):
+    """The state of ``arrays`` (equally long word arrays) folded: ``group`` of them a kernel into a
+    partial (storage words, evaluated), then the partials (lazy)."""
+    if len(arrays) <= group:
         state = None
-        for word in slices[first:first + group]:
+        for word in arrays:
             state = order.fold(state, word)
-        if len(slices) <= group:
-            return _interleaved(order.values(state), dr.width(state[0]))
-        part = order.pack(state)
+        return state
+    parts = []
+    for first in range(0, len(arrays), group):
+        part = order.pack(_fold_streams(arrays[first:first + group], order, group))
         dr.eval(part)  # one kernel: `group` sequential streams at a time
         parts.append(part)
-    state = None
-    for part in parts:
-        state = order.fold(state, part)
-    return _interleaved(order.values(state), dr.width(state[0]))
+    return _fold_streams(parts, order, group)
+
+
+def _z_columns(streams: SliceStreams, order: _WordOrder, group: int):
+    """z columns (axial): fold the chunks of slices as contiguous streams (:func:`_fold_streams`), then
+    the planes of the folded chunk and the rest slices; returns the column values in column order."""
+    planes = list(streams.rest)
+    if streams.chunks:
+        folded = order.pack(_fold_streams(streams.chunks, order, group))
+        dr.eval(folded)
+        flat = np.asarray(folded)
+        planes += [type(folded)(flat[i * streams.plane:(i + 1) * streams.plane]) for i in range(streams.stack)]
+    state = _fold_streams(planes, order, group)
+    return _interleaved(order.values(state), streams.plane)
 
 
 def _y_columns(words, shape_zyx, order: _WordOrder):
@@ -391,12 +424,12 @@ def reduce_half_words(words, shape_zyx, axis: int, mode: str, *, floats: bool = 
     floats : bool
         Compare words as float32 (:class:`_WordOrder`; only for :func:`float_ordered` data),
         else as 16-bit integer keys (any finite halves).
-    slices : list, optional
+    slices : SliceStreams, optional
         :func:`half_slices` of ``words`` (built here when not given).
     group : int
-        Slices a kernel of the axial (z) reduction (:data:`Z_GROUP`).
+        Arrays a kernel of the axial (z) reduction folds (:data:`Z_GROUP`).
 
-    z columns fold contiguous slice streams (no gathers); y columns and x rows fold packets of
+    z columns fold contiguous streams of chunks of slices (no gathers); y columns and x rows fold packets of
     up to :data:`PACKET` words a lane. Max and min are exact in any order. Returns the column
     values (``mi.Float``, storage units) in column order.
     """
