@@ -44,6 +44,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 def test_image(size: int) -> np.ndarray:
@@ -133,6 +134,26 @@ def plot(results: list[dict], path: Path, size: int) -> None:
     plt.close(fig)
 
 
+NOTES = """Floyd-Steinberg (issue 32): a grey image whose width is a whole number of 8-column blocks, scanned left to
+right, is diffused by the blocked schedule of `imaging/wavefront.py`: one SIMD packet of 16 rows per band, each
+loop iteration diffusing 8 columns of every row with the steps unrolled; the block's inputs (8-bit input read as
+bytes), the next 8 errors of the row above and the block's 8 errors and 8 output levels move as packet gathers and
+scatters (a vector load or store per lane and a transpose) instead of one hardware gather or scatter per value
+and step. The row "one-column schedule" is the same diffusion by the previous schedule (same bits, checked before
+timing; tests/test_dither.py compares both with a sequential float64 scan and with each other on scikit-image's
+camera and noise). What bounds it: the scan is sequential between bands and each band is one packet, so the
+kernel runs on one core against Pillow's one core, at the latency of the float64 arithmetic of a step (the
+error of the pixel to the left feeds the next pixel: about 16 cycles of multiply, add, compare, select and
+subtract), 16 rows at a time; sharing bands between the two cores needs a per-row progress counter between
+packets, which Dr.Jit's lockstep packets cannot express (a hand-written kernel). Serpentine scans and colour
+images keep the one-column schedule.
+
+Ordered dithering (issues 7 and 23): uint8 input is compared with a cached pre-tiled byte map (three contiguous
+byte streams, as `cv2.compare`); the floor rows are a bare Dr.Jit copy. Sub-millisecond kernels on Dr.Jit's two
+worker threads lose to preemption on a loaded machine, where single-threaded OpenCV on the calling thread does
+not: read the minima there."""
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=2048)
@@ -142,6 +163,7 @@ def main() -> int:
                         "(rows 'vs before': this tree's time over REV's, interleaved)")
     parser.add_argument("--json", type=Path, help="also write the numbers as JSON")
     parser.add_argument("--plot", type=Path, help="also draw ours / peer per row (PNG)")
+    parser.add_argument("--write", action="store_true", help="write the section into benchmarks/RESULTS.md")
     args = parser.parse_args()
 
     import cv2
@@ -185,6 +207,19 @@ def main() -> int:
     if args.only in ("all", "diffusion"):
         rows.append(("floyd_steinberg (float32 tensor)", ours(d.floyd_steinberg, tensor), pillow, None, None))
         rows.append(("floyd_steinberg (uint8 numpy)", ours(d.floyd_steinberg, u8), pillow, None, None))
+        # the same diffusion by the one-column schedule (issue 32's blocked schedule off): same bits
+        from drjit.llvm import UInt8 as Bytes
+
+        from pointillist.imaging.wavefront import diffuse_wavefront
+
+        fs_kernel = tuple((dy, dx, k / 16) for dy, dx, k in d.KERNELS["floyd_steinberg"].weights)
+        fs_tables = d._quantiser(2, 128.0, False)
+        u8_flat = Bytes(u8.reshape(-1))
+        assert np.array_equal(diffuse_wavefront(u8_flat, size, size, 1, fs_kernel, False, fs_tables, eight_bit=True,
+                                                blocks=False).numpy(), np.asarray(d.floyd_steinberg(u8)).ravel())
+        rows.append(("floyd_steinberg (uint8, one-column schedule)",
+                     ours(diffuse_wavefront, u8_flat, size, size, 1, fs_kernel, False, fs_tables, eight_bit=True,
+                          blocks=False), pillow, None, None))
     if args.only in ("all", "ordered"):
         cases = (("ordered 4x4", d.TEMPLATE_4), ("bayer 8x8", d.bayer(8)), ("blue_noise 64x64", d.blue_noise_mask()))
         for label, template in cases:
@@ -300,27 +335,40 @@ def main() -> int:
 
     import drjit
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
-          f"{os.getloadavg()[0]:.2f}; Python {platform.python_version()}, Dr.Jit {drjit.__version__}, "
-          f"Pillow {PIL.__version__}, OpenCV {cv2.__version__}, numpy {np.__version__}; Dr.Jit threads "
-          f"{dr.thread_count()}, packet width {packet_width()}; median (and minimum) of {repeats} interleaved repeats")
-    print(f"\n| {size}x{size} | ours median (min) ms | our kernel (ms) | launches | peer (faster setting) "
-          f"| peer median (min) ms | ours / peer, medians | (minima) | MB moved ours / peer |")
-    print("|---|---:|---:|---:|---|---:|---:|---:|---:|")
+    lines = ["## Dithering (imaging.dither), 2048 x 2048", "",
+             "`flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_dither.py "
+             f"{' '.join(sys.argv[1:])}`",
+             "",
+             f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
+             f"{', '.join(f'{x:.2f}' for x in os.getloadavg())} (2 cores: above ~1 these are loaded-machine figures; "
+             f"rerun on a quiet machine); Python {platform.python_version()}, Dr.Jit {drjit.__version__}, "
+             f"Pillow {PIL.__version__}, OpenCV {cv2.__version__}, numpy {np.__version__}; Dr.Jit threads "
+             f"{dr.thread_count()}, packet width {packet_width()}; median (and minimum) of {repeats} interleaved "
+             "repeats. Input: 8-bit gradient + noise. Goals: issue 32, Floyd-Steinberg of uint8 at most 0.6x "
+             "Pillow's `convert('1')`; issue 23, ordered / Bayer / blue noise of uint8 at most 1.5x `cv2.compare` "
+             "against a pre-tiled uint8 map; issue 7, float32 ordered at most 0.5x `cv2.compare` f32.",
+             "", f"| {size}x{size} | ours median (min) ms | our kernel (ms) | launches | peer (faster setting) "
+             f"| peer median (min) ms | ours / peer, medians | (minima) | MB moved ours / peer |",
+             "|---|---:|---:|---:|---|---:|---:|---:|---:|"]
     for r in results:
         peer = (f"{r['best']} | {r['peers'][r['best']]:.2f} ({r['peers_min'][r['best']]:.2f}) | {r['ratio']:.2f} "
                 f"| {r['ratio_min']:.2f}") if r["best"] else "- | - | - | -"
         moved = f"{r['bytes_ours'] / 1e6:.0f} / {r['bytes_peer'] / 1e6:.0f}" if r["bytes_ours"] else "-"
-        print(f"| {r['label']} | {r['ours']:.2f} ({r['ours_min']:.2f}) | {r['kernel']:.2f} | {r['launches']} | {peer} "
-              f"| {moved} |")
-    print("\nall peer medians (ms): " + "; ".join(
-        f"{r['label']}: " + ", ".join(f"{k} {v:.2f}" for k, v in r["peers"].items()) for r in results if r["peers"]))
-    print("\n| first call in a fresh process (ms) | cold cache | of which LLVM codegen + compile | warm cache "
-          "| of which codegen + compile | steady (median of 6) |")
-    print("|---|---:|---:|---:|---:|---:|")
+        lines.append(f"| {r['label']} | {r['ours']:.2f} ({r['ours_min']:.2f}) | {r['kernel']:.2f} | {r['launches']} "
+                     f"| {peer} | {moved} |")
+    lines += ["", "all peer medians (ms): " + "; ".join(
+        f"{r['label']}: " + ", ".join(f"{k} {v:.2f}" for k, v in r["peers"].items()) for r in results if r["peers"])]
+    lines += ["", "| first call in a fresh process (ms) | cold cache | of which LLVM codegen + compile | warm cache "
+              "| of which codegen + compile | steady (median of 6) |", "|---|---:|---:|---:|---:|---:|"]
     for name in cold:
-        print(f"| {name} | {cold[name][0] * 1e3:.1f} | {cold[name][2]:.1f} | {warm[name][0] * 1e3:.1f} "
-              f"| {warm[name][2]:.1f} | {warm[name][1] * 1e3:.2f} |")
+        lines.append(f"| {name} | {cold[name][0] * 1e3:.1f} | {cold[name][2]:.1f} | {warm[name][0] * 1e3:.1f} "
+                     f"| {warm[name][2]:.1f} | {warm[name][1] * 1e3:.2f} |")
+    lines += ["", NOTES]
+    print("\n".join(lines))
+    if args.write:
+        from _results import write_block
+
+        write_block("imaging_dither", "\n".join(lines))
     if args.json:
         args.json.write_text(json.dumps({"rows": results, "cold": cold, "warm": warm}, indent=1))
     if args.plot:

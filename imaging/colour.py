@@ -35,11 +35,11 @@ from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Array3u64, Float, UInt32, UInt64
+from drjit.llvm import Array3f, Array3u64, Float, UInt8, UInt32, UInt64
 
 from pointillist import checks
-from pointillist.imaging.arrays import (TensorXf, as_tensor, eager_if_shared, opaque_scalar, replace_non_finite,
-                                        warn_non_finite)
+from pointillist.imaging.arrays import (TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar,
+                                        replace_non_finite, uint8_array, warn_non_finite)
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -351,7 +351,8 @@ def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
     -------
     drjit.llvm.TensorXf
         (H, W). NaN and -inf components count as 0, +inf as ``max_value``, with one
-        ``NonFiniteWarning``.
+        ``NonFiniteWarning``. 8-bit input (numpy ``uint8``, ``TensorXu8``) gives the values of its
+        float32 conversion, read from the bytes without a float32 copy.
 
     Examples
     --------
@@ -360,8 +361,10 @@ def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
     >>> np.asarray(luminance(np.ones((1, 2, 3)))).round(6).tolist()
     [[1.0, 1.0]]
     """
-    tensor = as_tensor(image, channels=(1, 3))
     white = _white(max_value)
+    if is_uint8(image):
+        return _luminance_bytes(image)
+    tensor = as_tensor(image, channels=(1, 3))
     height, width = tensor.shape[:2]
     if tensor.ndim == 2 or tensor.shape[2] == 1:
         grey, counter = replace_non_finite(tensor.array, white)
@@ -371,6 +374,38 @@ def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
     r, g, b = _clean_rgb(white, counter)(rgb.x, rgb.y, rgb.z)
     wr, wg, wb = REC709_LUMINANCE_WEIGHTS
     return warn_non_finite(TensorXf(wr * r + wg * g + wb * b, (height, width)), counter[0], "luminance")
+
+
+def _luminance_bytes(image: Any) -> TensorXf:
+    """:func:`luminance` of 8-bit input: the same float32 values, read from the bytes in the kernel
+    that uses them (no float32 copy of the image, and no non-finite rule: bytes are finite).
+
+    R, G and B of pixel p are bytes 3p, 3p + 1, 3p + 2, gathered as the 32-bit words holding them
+    (LLVM scalarises a gather of single bytes) when the bytes can be viewed as words. Lazy: the
+    grey values are computed in the kernel that consumes them (a ``post`` chain's next step).
+    """
+    array = uint8_array(image)
+    check_shape(array.shape, "image", (1, 3))
+    height, width = array.shape[:2]
+    flat = array.reshape(-1)
+    if array.ndim == 2 or array.shape[2] == 1:
+        grey = Float(UInt8(flat))
+    else:
+        if flat.size % 4 == 0 and flat.ctypes.data % 4 == 0 and sys.byteorder == "little":
+            words = UInt32(flat.view(np.uint32))
+            first = dr.arange(UInt32, height * width) * 3
+
+            def channel(c: int) -> Float:
+                byte = first + c
+                return Float((dr.gather(UInt32, words, byte >> 2) >> ((byte & 3) << 3)) & 0xFF)
+
+            r, g, b = channel(0), channel(1), channel(2)
+        else:
+            rgb = dr.unravel(Array3f, Float(UInt8(flat)))
+            r, g, b = rgb.x, rgb.y, rgb.z
+        wr, wg, wb = REC709_LUMINANCE_WEIGHTS
+        grey = wr * r + wg * g + wb * b
+    return TensorXf(grey, (height, width))
 
 
 def srgb_encode_values(values: Float) -> Float:

@@ -246,8 +246,9 @@ def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] 
         raise TypeError(f"absolute: expected a bool, got {type(absolute).__name__}")
     ry, rx = _check_ring(ring)
     tensor = as_tensor(image)
-    values = dr.abs(tensor.array) if absolute else tensor.array
-    dr.eval(values)
+    source = tensor.array
+    dr.eval(source)
+    values = dr.abs(source) if absolute else source  # computed again in the output's kernel
     inside = None
     if ry or rx:
         H, W = tensor.shape[0], tensor.shape[1]
@@ -255,12 +256,9 @@ def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] 
         pixel = dr.arange(UInt32, H * W * C) // C
         y, x = pixel // W, pixel % W
         inside = (y >= ry) & (y + ry < H) & (x >= rx) & (x + rx < W)
-        counted = dr.select(inside, values, math.nan)   # NaN is left out of min/max
-        dr.eval(counted)
-        bounds = finite_extrema(counted)
-    else:
-        bounds = finite_extrema(values)
-    out = _rescale(values, bounds, inside, tensor.array if inside is not None else None)
+    # one pass over the source for min and max, the absolute value and the ring left out in it
+    bounds = finite_extrema(source, absolute=absolute, shape=tuple(tensor.shape), ring=(ry, rx))
+    out = _rescale(values, bounds, inside, source if inside is not None else None)
     out = dr.select(values == -math.inf, 0.0, out) if inside is None else \
         dr.select(inside & (values == -math.inf), 0.0, out)
     return TensorXf(out, tensor.shape)

@@ -280,29 +280,59 @@ def select_max(a: Float, b: Float) -> Float:
     return dr.select(a > b, a, b)
 
 
-def finite_extrema(values: Float) -> tuple[float, float] | None:
+def _fold_extrema(views: list, absolute: bool, counted: Bool | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-lane (min, max) of the finite (absolute) values of equally long ``views``, where ``counted``."""
+    low = high = None
+    for view in views:
+        view = dr.abs(view) if absolute else view
+        finite = dr.isfinite(view) if counted is None else dr.isfinite(view) & counted
+        lo, hi = dr.select(finite, view, math.inf), dr.select(finite, view, -math.inf)
+        low, high = (lo, hi) if low is None else (select_min(lo, low), select_max(hi, high))
+    dr.eval(low, high)
+    return low.numpy(), high.numpy()
+
+
+def finite_extrema(values: Float, *, absolute: bool = False, shape: tuple[int, ...] | None = None,
+                   ring: tuple[int, int] = (0, 0)) -> tuple[float, float] | None:
     """(min, max) of the finite entries of an evaluated flat array; ``None`` when there are none.
 
-    One Dr.Jit pass folds 16 zero-copy views of the array (lane ``j`` takes entries
-    ``j + k * n // 16``, k = 0..15) into per-lane min and max, then numpy finishes the
-    short per-lane results and the < 16 tail entries. (Dr.Jit's ``dr.min`` costs a
-    slower separate reduction per extremum, and ``mode="symbolic"`` fuses it as atomics
-    that cost about 3x a pass here.)
+    ``absolute``: of the absolute values. With the image ``shape`` (H, W[, C]), ``ring`` (ry, rx)
+    leaves out the pixels less than ry rows or rx columns from the border (the ring a zero-border
+    window step leaves uncomputed). One Dr.Jit pass folds 16 zero-copy views of the array into
+    per-lane min and max (lane ``j`` of view ``k`` takes entry ``j + k * n // 16``; with a ring,
+    16 bands of whole interior rows, so a lane's column and hence its mask is the same in every
+    view), then numpy finishes the per-lane results and the entries left over. (Dr.Jit's
+    ``dr.min`` costs a slower separate reduction per extremum, and ``mode="symbolic"`` fuses it
+    as atomics that cost about 3x a pass here.)
     """
     array = values.numpy().reshape(-1)
-    lanes = array.size // _REDUCE_WAYS // 16 * 16     # views share the base's alignment: <= 2 kernels per size
     pieces = []
-    rest = array
-    if lanes >= 1024:
-        low = high = None
-        for k in range(_REDUCE_WAYS):
-            view = Float(array[k * lanes:(k + 1) * lanes])
-            finite = dr.isfinite(view)
-            lo, hi = dr.select(finite, view, math.inf), dr.select(finite, view, -math.inf)
-            low, high = (lo, hi) if low is None else (select_min(lo, low), select_max(hi, high))
-        dr.eval(low, high)
-        pieces = [low.numpy(), high.numpy()]
-        rest = array[_REDUCE_WAYS * lanes:]
+    ry, rx = ring
+    if shape is None or not (ry or rx):
+        lanes = array.size // _REDUCE_WAYS // 16 * 16     # views share the base's alignment: <= 2 kernels per size
+        rest = array
+        if lanes >= 1024:
+            pieces += _fold_extrema([Float(array[k * lanes:(k + 1) * lanes]) for k in range(_REDUCE_WAYS)],
+                                    absolute, None)
+            rest = array[_REDUCE_WAYS * lanes:]
+    else:
+        height, width = shape[0], shape[1]
+        channels = shape[2] if len(shape) == 3 else 1
+        if height <= 2 * ry or width <= 2 * rx:
+            return None
+        row = width * channels
+        rows = height - 2 * ry
+        band = rows // _REDUCE_WAYS                       # whole rows per view
+        first = ry
+        if band * row >= 1024:
+            column = (dr.arange(UInt32, band * row) // channels) % width if channels > 1 else \
+                dr.arange(UInt32, band * row) % width
+            counted = (column >= rx) & (column < width - rx) if rx else None
+            pieces += _fold_extrema([Float(array[(ry + k * band) * row:(ry + (k + 1) * band) * row])
+                                     for k in range(_REDUCE_WAYS)], absolute, counted)
+            first = ry + _REDUCE_WAYS * band
+        rest = array.reshape(height, width, channels)[first:height - ry, rx:width - rx].reshape(-1)
+    rest = np.abs(rest) if absolute else rest
     rest = rest[np.isfinite(rest)]
     if rest.size:
         pieces += [rest, rest]

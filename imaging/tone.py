@@ -50,7 +50,7 @@ from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Float, Float64, UInt8, UInt32, UInt64
+from drjit.llvm import Array3f, Float, UInt8, UInt32
 
 from pointillist import checks
 from pointillist.imaging.arrays import (NonFiniteWarning, TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared,
@@ -478,20 +478,78 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
 _PAIR_LEVELS = 256
 
 
-def _histogram_of(bins: UInt8 | UInt32, words: UInt32 | None, tail: UInt32 | None, levels: int) -> UInt32:
-    """Histogram (``levels`` bins) of the evaluated per-pixel ``bins`` via ``dr.scatter_add``.
+#: Lanes of a Dr.Jit work block on the LLVM backend once a kernel has more than 2 x 16384 lanes a core:
+#: the blocks are then lanes [16384 b, 16384 (b + 1)) and each runs on one thread at a time.
+_BLOCK = 16384
+
+
+def _byte_histogram(words: UInt32, tail: UInt32 | None, region: int = _BLOCK) -> np.ndarray | None:
+    """256-bin histogram of bytes packed in ``words`` (+ ``tail``) with plain increments into private
+    sub-histograms, or None when that cannot be used (too few words) or was not exact.
+
+    Each work block of :data:`_BLOCK` lanes has its own table, each lane of a 16-wide SIMD packet its own
+    column of it (bin-major, so the 16 lanes' counters of one bin share a cache line): a gather, an add
+    and a scatter a byte, with no two lanes of a packet and no two threads ever updating the same counter,
+    instead of a scatter-add whose lanes must be checked for equal addresses (a 16-step loop a packet).
+    The tables are read and written through two Dr.Jit arrays over the same memory. Exactness does not
+    rest on the block layout: a lost update (two writers, or a read reordered before a write) can only
+    lower the total, so a total other than the byte count rejects the result. ``region``: lanes sharing
+    a table (the block size; a test shares one table between threads to see the check refuse).
+    """
+    cores = max(1, dr.thread_count())
+    count = dr.width(words)
+    lanes = _BLOCK * max(8, 2 * cores + 1)  # past the regime where Dr.Jit sizes blocks by the core count
+    if count < lanes:
+        return None
+    blocks = -(-lanes // region)
+    raw = np.zeros(blocks * 4096 + 16, dtype=np.uint32)
+    start = (-raw.ctypes.data % 64) // 4
+    memory = raw[start:start + blocks * 4096]
+    table_in, table_out = UInt32(memory), UInt32(memory)
+    lane = dr.arange(UInt32, lanes)
+    base = (lane // region) * 4096 + lane % 16
+    total = dr.opaque(UInt32, count)
+    stride = dr.opaque(UInt32, lanes)
+    rounds = dr.opaque(UInt32, -(-count // lanes))
+
+    def body(k, index):
+        ok = index < total
+        word = dr.gather(UInt32, words, index, ok)
+        for byte in range(4):
+            slot = base + ((word >> (8 * byte)) & 0xFF) * 16
+            dr.scatter(table_out, dr.gather(UInt32, table_in, slot, ok) + 1, slot, ok)
+        return k + 1, index + stride
+
+    dr.while_loop((UInt32(0), UInt32(lane)), lambda k, index: k < rounds, body, mode="symbolic",
+                  label="byte_histogram")
+    dr.eval(table_out)
+    dr.sync_thread()
+    hist = memory.reshape(blocks, 256, 16).sum(axis=(0, 2), dtype=np.int64)
+    if tail is not None:
+        hist += np.bincount(tail.numpy(), minlength=256)[:256]
+    expected = 4 * count + (dr.width(tail) if tail is not None else 0)
+    return hist if int(hist.sum()) == expected else None
+
+
+def _histogram_of(bins: UInt8 | UInt32, words: UInt32 | None, tail: UInt32 | None, levels: int) -> np.ndarray:
+    """Histogram (``levels`` bins, int64) of the evaluated per-pixel ``bins``.
 
     For 8-bit bins (``levels`` <= 256) given as packed 32-bit ``words`` (four bins
-    each; ``tail`` the 0..3 bins after the last whole word), the bins are counted in
-    pairs: bytes (0, 1) and (2, 3) of each word index a 65,536-entry table, so each
-    lane makes 2 atomic additions for 4 pixels, spread over many more entries than
-    ``levels`` (fewer collisions); the table is then summed both ways. Otherwise
-    one addition per pixel into ``levels`` bins.
+    each; ``tail`` the 0..3 bins after the last whole word): private sub-histograms
+    (:func:`_byte_histogram`) where the image is large enough; else the bins are counted in
+    pairs with ``dr.scatter_add``: bytes (0, 1) and (2, 3) of each word index a 65,536-entry
+    table, 2 additions for 4 pixels, and the table is summed both ways on the host (one
+    read-back of 256 KiB instead of four more kernel launches). Otherwise one addition per
+    pixel into ``levels`` bins.
     """
+    if words is not None and levels <= _PAIR_LEVELS:
+        hist = _byte_histogram(words, tail)
+        if hist is not None:
+            return hist[:levels]
     if words is None:
         hist = dr.zeros(UInt32, levels)
         dr.scatter_add(hist, 1, UInt32(bins))
-        return hist
+        return hist.numpy().astype(np.int64)
     side = _PAIR_LEVELS
     pairs = side * side
     table = dr.zeros(UInt32, pairs + side)
@@ -499,26 +557,31 @@ def _histogram_of(bins: UInt8 | UInt32, words: UInt32 | None, tail: UInt32 | Non
     dr.scatter_add(table, 1, words >> 16)
     if tail is not None:
         dr.scatter_add(table, 1, pairs + tail)
-    entry = dr.arange(UInt32, pairs)
-    by_low = dr.block_sum(dr.gather(UInt32, table, entry), side)
-    by_high = dr.block_sum(dr.gather(UInt32, table, (entry % side) * side + entry // side), side)
-    hist = by_low + by_high + dr.gather(UInt32, table, pairs + dr.arange(UInt32, side))
-    return dr.gather(UInt32, hist, dr.arange(UInt32, levels)) if levels < side else hist
+    counts = table.numpy().astype(np.int64)
+    by_pair = counts[:pairs].reshape(side, side)  # [second byte, first byte]
+    hist = by_pair.sum(axis=0) + by_pair.sum(axis=1) + counts[pairs:]
+    return hist[:levels]
 
 
-def _equalization_table(hist: UInt32, n: int, levels: int, max_value: float) -> Float:
-    """Output value of each level: F(i) = max(0, round(L t(i) / (h w)) - 1), scaled to max_value.
+def _equalization_table(hist: np.ndarray, n: int, levels: int, max_value: float) -> np.ndarray:
+    """Output value of each level (float32): F(i) = max(0, round(L t(i) / (h w)) - 1), scaled to max_value.
 
-    round() is half to even, done exactly in integers.
+    round() is half to even, done exactly in integers (on the host: ``levels`` entries).
     """
-    t = UInt64(dr.cumsum(hist))
-    numerator = t * levels
-    total = dr.opaque(UInt64, n)
+    t = np.cumsum(hist, dtype=np.uint64)
+    numerator = t * np.uint64(levels)
+    total = np.uint64(n)
     q = numerator // total
-    twice_r = 2 * (numerator - q * total)
-    q = dr.select((twice_r > total) | ((twice_r == total) & ((q & 1) == 1)), q + 1, q)
-    f = dr.select(q > 0, Float64(q) - 1.0, 0.0)
-    return Float(f * (max_value / (levels - 1)))
+    twice_r = np.uint64(2) * (numerator - q * total)
+    q = np.where((twice_r > total) | ((twice_r == total) & (q % np.uint64(2) == 1)), q + np.uint64(1), q)
+    f = np.where(q > 0, q.astype(np.float64) - 1.0, 0.0)
+    return (f * (max_value / (levels - 1))).astype(np.float32)
+
+
+def _byte_table(table: np.ndarray) -> UInt32:
+    """A float32 look-up table rounded as :func:`~pointillist.imaging.arrays.to_uint8` rounds (clip
+    to 0..255, half to even; the table has no NaN), held as UInt32 for :func:`_look_up_bytes`."""
+    return UInt32(np.clip(np.rint(table), 0.0, 255.0).astype(np.uint32))
 
 
 def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.ndarray:
@@ -551,7 +614,7 @@ def histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> np.
     levels = _levels(levels, high=65536)
     max_value = _white(max_value, levels)
     bins, words, tail, _, _ = _bins(image, levels, max_value)
-    return np.asarray(_histogram_of(bins, words, tail, levels)).astype(np.int64)
+    return _histogram_of(bins, words, tail, levels)
 
 
 def _packed(flat: np.ndarray) -> tuple[UInt32 | None, UInt32 | None]:
@@ -660,8 +723,8 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
     if eight_bit:
-        return _done(TensorXu8(_look_up_bytes(UInt32(to_uint8(table)), UInt32(bins)), shape))
-    result = TensorXf(dr.gather(Float, table, UInt32(bins)), shape)
+        return _done(TensorXu8(_look_up_bytes(_byte_table(table), UInt32(bins)), shape))
+    result = TensorXf(dr.gather(Float, Float(table), UInt32(bins)), shape)
     if count is None:
         return _done(result)
     return _finish(result, count, "equalize_histogram")
@@ -684,7 +747,7 @@ def _equalize_colour(tensor: TensorXf, levels: int, max_value: float,
     words, tail = _packed(np.asarray(bins)) if levels <= _PAIR_LEVELS else (None, None)
     n = dr.width(bins)
     table = _equalization_table(_histogram_of(bins, words, tail, levels), n, levels, max_value)
-    r, g, b = rgb_from_hsv_values(h, s, dr.gather(Float, table, UInt32(bins)))
+    r, g, b = rgb_from_hsv_values(h, s, dr.gather(Float, Float(table), UInt32(bins)))
     values = dr.ravel(Array3f(r, g, b))
     if eight_bit:  # rounded in the same pass
         return _finish(TensorXu8(to_uint8(values), tensor.shape), count, "equalize_histogram")

@@ -36,6 +36,7 @@ from __future__ import annotations
 import gzip
 import os
 import struct
+import sys
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1181,6 +1182,36 @@ def _nan_range(data: np.ndarray) -> tuple[float, float]:
     return lo, hi
 
 
+def _half_of_integers(data: np.ndarray, offset: float, module: Any):
+    """The half-precision storage ``data - offset`` of 8- or 16-bit integer data, converted by Dr.Jit
+    on every core (a ``TensorXf16`` of shape (Z, Y, X, 1)), or None for other data.
+
+    The same float16 values as numpy's conversion in :func:`volume_texture`: the integers are exact
+    in float32, less the offset in float32 as there, then rounded to half precision to nearest even
+    (exact for data the texture stores exactly). 16-bit data is read in place as 32-bit words (two
+    voxels a word; a gather of 16-bit values would be split into scalar loads).
+    """
+    import drjit as dr
+
+    flat = data.reshape(-1) if data.flags.c_contiguous else None
+    if flat is None or flat.dtype not in (np.int16, np.uint16, np.uint8) or sys.byteorder != "little":
+        return None
+    index = dr.arange(module.UInt32, flat.size)
+    if flat.dtype == np.uint8:
+        values = module.Float(module.UInt8(flat))
+    else:
+        if flat.size % 2 or flat.ctypes.data % 4:
+            return None
+        word = dr.gather(module.UInt32, module.UInt32(flat.view(np.uint32)), index >> 1)
+        bits = module.Int32((word >> ((index & 1) << 4)) << 16)  # the voxel in the top 16 bits
+        values = module.Float(bits >> 16 if flat.dtype == np.int16 else module.Int32(module.UInt32(bits) >> 16))
+    if offset:
+        values = values - dr.opaque(module.Float, offset)
+    half = module.Float16(values)
+    dr.eval(half)
+    return module.TensorXf16(half, shape=(*data.shape, 1))
+
+
 def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
                    precision: str = "auto", ad: bool = True) -> VolumeTexture:
     """Build a Dr.Jit 3-D texture (clamp wrap) of ``volume``.
@@ -1204,8 +1235,9 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
 
     Notes
     -----
-    The half texture is filled slab by slab into one float16 buffer that Dr.Jit
-    shares without a copy: peak memory is the source array plus 2 bytes a voxel.
+    The half texture of 8- and 16-bit integer data is converted by Dr.Jit on every core; other data
+    is filled slab by slab into one float16 buffer that Dr.Jit shares without a copy: peak memory is
+    the source array plus 2 bytes a voxel either way.
     Interpolation runs in float32 either way. ``exact`` says whether the texture holds every
     value exactly: float32 holds integers only up to 2^24 in magnitude (an int32 volume above
     that is rounded) and float64 values only where they round-trip; a finite value beyond
@@ -1246,13 +1278,15 @@ def volume_texture(volume: Volume | np.ndarray, *, filter: str = "linear",
     nz, ny, nx = data.shape
     if use_half:
         exact = fits
-        buffer = np.empty((nz, ny, nx, 1), dtype=np.float16)
-        for z in range(0, nz, 32):
-            slab = data[z:z + 32]
-            buffer[z:z + 32, ..., 0] = (slab.astype(np.float32) - np.float32(offset)) if offset else slab
-        tensor = TensorXf16(buffer)
+        tensor = _half_of_integers(data, offset, module)
+        if tensor is None:
+            buffer = np.empty((nz, ny, nx, 1), dtype=np.float16)
+            for z in range(0, nz, 32):
+                slab = data[z:z + 32]
+                buffer[z:z + 32, ..., 0] = (slab.astype(np.float32) - np.float32(offset)) if offset else slab
+            tensor = TensorXf16(buffer)
         texture = Texture3f16(tensor, use_accel=False, filter_mode=mode, wrap_mode=dr.WrapMode.Clamp)
-        kind, nbytes = "half", buffer.nbytes
+        kind, nbytes = "half", 2 * data.size
     else:
         offset = 0.0
         exact = _single_exact(data, lo, hi)

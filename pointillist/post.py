@@ -105,12 +105,15 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     ([[0.0, 0.0], [255.0, 255.0]], ['threshold:level=128'])
     """
     from pointillist.imaging import as_tensor
+    from pointillist.imaging.arrays import TensorXu8, is_uint8, uint8_array
     from pointillist.steps import parse_steps
     from pointillist.steps import steps as known_steps
 
     if isinstance(pipeline, str):
         pipeline = parse_steps(pipeline)
-    current = as_tensor(image)
+    # 8-bit input stays bytes (shared, no float32 copy) up to the first step that does not `takes_bytes`
+    # step, which gets its float32 conversion lazily (computed inside that step's kernel)
+    current = TensorXu8(uint8_array(image)) if is_uint8(image) else as_tensor(image)
     known = known_steps()
     reports: list[tuple[str, str, dict[str, float]]] = []
     done: list[str] = []
@@ -119,6 +122,8 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
     for spec, kwargs in pipeline:
         if spec.name == "normalize" and "ring" not in kwargs and ring:
             kwargs = dict(kwargs, ring=ring)
+        if not spec.takes_bytes or linear:
+            current = as_tensor(current)
         if linear and not spec.linear:
             current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
             linear = False

@@ -156,6 +156,23 @@ def test_hsv_needs_three_channels(function):
         function("not an image")
 
 
+def test_luminance_of_bytes_equals_that_of_their_float_conversion():
+    # 8-bit input is read as bytes (32-bit word gathers; odd pixel counts fall back to a float
+    # unravel): the float32 values of the float path, bit for bit, on real and noisy images
+    from skimage import data
+
+    from pointillist.imaging.arrays import TensorXu8
+
+    rng = np.random.default_rng(8)
+    for image in (data.astronaut(), data.coffee(), rng.integers(0, 256, (17, 13, 3), dtype=np.uint8),
+                  rng.integers(0, 256, (16, 12, 3), dtype=np.uint8), data.camera(), data.camera()[..., None]):
+        expected = np.asarray(luminance(image.astype(np.float32), max_value=255.0))
+        for given in (image, TensorXu8(image)):
+            got = np.asarray(luminance(given, max_value=255.0))
+            assert got.dtype == np.float32 and got.shape == image.shape[:2]
+            assert np.array_equal(got.view(np.uint32), expected.view(np.uint32))
+
+
 def test_luminance_rejects_two_channels():
     with pytest.raises(ValueError, match="channels"):
         luminance(np.zeros((2, 2, 2)))

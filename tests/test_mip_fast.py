@@ -103,15 +103,18 @@ def test_anisotropic_spacing_and_pose_keep_the_columns_exact(mi):
     assert path == "columns" and _same_bits(a, b)
 
 
-@pytest.mark.parametrize("nx", [64, 16, 10, 9])
-def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
-    # nx even: packed float16 pairs and integer keys (nx = 64: 16 lanes share a row along x; rows of a
-    # multiple of 4 words are read 4 words a lane and load, nx = 10 one word at a time);
+@pytest.mark.parametrize("nx", [64, 16, 12, 10, 9])
+def test_half_word_and_float_reductions_equal_numpy(rng, mi, nx):
+    # nx even: packed float16 pairs, compared as 16-bit keys and (data without -0 or values below
+    # 2^-17) as float32 words; rows of 32, 8, 6 and 5 words are read 8, 8, 2 and 1 word a lane
+    # and load; 37 slices: chunks of 8, 4, 1 or no whole chunk (64) and the rest slices, 2-64 streams a kernel.
     # nx odd: one float16 gather a voxel
-    from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+    from pointillist.plugins.integrators._mip_accel import (float_ordered, half_slices, reduce_columns,
+                                                            reduce_half_words)
 
-    vol = rng.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)  # 37 slices: a partial chunk
+    vol = rng.integers(-2048, 2049, (37, 6, nx)).astype(np.float16)
     storage = mi.Float16(vol.ravel())
+    assert float_ordered(vol.view(np.uint16))
     for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
         for mode, reduce in (("mip", np.max), ("minip", np.min)):
             expected = reduce(vol, axis=np_axis).astype(np.float32)
@@ -119,11 +122,165 @@ def test_half_key_and_float_reductions_equal_numpy(rng, mi, nx):
             acc, seen = reduce_columns(storage, vol.shape, axis, mode, has_nan=False)
             np.testing.assert_array_equal(np.asarray(acc), expected)
             if nx % 2 == 0:
-                words = mi.UInt32(vol.view(np.uint32).ravel())
-                np.testing.assert_array_equal(np.asarray(reduce_half_keys(words, vol.shape, axis, mode, chunk=8)),
-                                              expected)
+                words = mi.UInt32(vol.view(np.uint32).ravel()) + 0  # Dr.Jit's own (aligned) memory
+                for floats in (False, True):
+                    for group, stack in ((8, 8), (64, 8), (2, 4), (3, 1), (4, 64)):  # chunks of slices + rest
+                        got = reduce_half_words(words, vol.shape, axis, mode, floats=floats, group=group,
+                                                slices=half_slices(words, vol.shape, stack=stack))
+                        np.testing.assert_array_equal(np.asarray(got), expected)
     with pytest.raises(ValueError, match="even"):
-        reduce_half_keys(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
+        reduce_half_words(mi.UInt32(np.zeros(4, np.uint32)), (1, 1, 9), 2, "mip")
+
+
+def test_float_word_order_needs_no_negative_zero_and_no_tiny_values(mi):
+    # every pair of finite halves outside {-0, |x| < 2^-17} compares as float32 words like the keys;
+    # -0 and the tiny values are exactly what float_ordered refuses (they compare equal to 0 there)
+    from pointillist.plugins.integrators._mip_accel import float_ordered, reduce_half_words
+
+    bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
+    finite = bits[np.isfinite(bits.view(np.float16))]
+    safe = finite[((finite & 0x7F80) != 0) | (finite == 0)]
+    assert float_ordered(safe) and not float_ordered(np.array([0x8000], np.uint16))
+    assert not float_ordered(np.array([0x0001], np.uint16)) and not float_ordered(np.array([0x807F], np.uint16))
+    assert float_ordered(np.array([0x0080, 0x8080, 0x0000, 0x7BFF, 0xFBFF], np.uint16))
+    rng = np.random.default_rng(9)
+    vol = rng.choice(safe, size=(40, 3, 2048)).view(np.float16)  # every safe half, shuffled
+    words = mi.UInt32(vol.view(np.uint32).ravel()) + 0
+    for axis, np_axis in ((0, 2), (1, 1), (2, 0)):
+        for mode, reduce in (("mip", np.max), ("minip", np.min)):
+            expected = reduce(vol.astype(np.float32), axis=np_axis).ravel()
+            keys = np.asarray(reduce_half_words(words, vol.shape, axis, mode, floats=False))
+            floats = np.asarray(reduce_half_words(words, vol.shape, axis, mode, floats=True))
+            assert np.array_equal(keys.view(np.uint32), expected.view(np.uint32))
+            assert np.array_equal(floats.view(np.uint32), expected.view(np.uint32))
+
+
+def test_integrator_compares_words_as_floats_only_where_exact(mi):
+    # int16 CT (integers less an integer offset): float-order words; float16 data holding -0 or
+    # values below 2^-17: integer keys; both equal the march bit for bit, on all three axes
+    ct = VOLUMES["pow2_int16"]
+    tiny = RNG.integers(-50, 50, (8, 6, 8)).astype(np.float16)
+    tiny[1, 2, 3], tiny[4, 0, 0], tiny[5, 5, 5] = -0.0, np.float16(2.0**-20), np.float16(-(2.0**-22))
+    tiny[:, :, 6] = np.float16(2.0**-24)  # a whole column of subnormals: its maximum is one of them
+    for volume, ordered in ((ct, True), (tiny, False)):
+        for view in ("axial", "coronal", "sagittal"):
+            for mode in ("mip", "minip"):
+                props = {"mode": mode, "interpolation": "nearest", "precision": "half"}
+                a, b, path = _project_both(mi, volume, props, view=view, native=True)
+                assert path == "columns" and _same_bits(a, b), (view, mode)
+        fast, _ = _pair(mi, volume, interpolation="nearest", precision="half")
+        assert fast._float_ordered() is ordered
+
+
+@pytest.mark.parametrize("shape", [(8, 6, 10), (5, 7, 4), (3, 2, 2), (16, 16, 16)])
+@pytest.mark.parametrize("kind", ["int16", "float16", "tiny"])
+def test_word_lookups_equal_the_texture_bit_for_bit(mi, rng, shape, kind):
+    # HalfSampler (32-bit word gathers) against the texture's own eval: points inside, outside and on
+    # faces, voxel centres and half-way points; integers, float16 data, and float16 data with
+    # subnormals and -0 (the general half conversion); trilinear and nearest
+    from pointillist.imaging.volumes import volume_texture
+    from pointillist.plugins.integrators._mip_accel import HalfSampler, float_ordered
+
+    data = {"int16": lambda: rng.integers(-2000, 2000, shape).astype(np.int16),
+            "float16": lambda: (rng.standard_normal(shape) * 100).astype(np.float16),
+            "tiny": lambda: (rng.standard_normal(shape) * 1e-5).astype(np.float16)}[kind]()
+    if kind == "tiny":
+        data.reshape(-1)[:3] = np.float16(-0.0)
+    res = np.array(shape[::-1], np.float64)
+    grid = [(np.arange(-1, 2 * int(r) + 2) / (2 * r)).astype(np.float32) for r in res]  # centres, faces, halves
+    for filter_mode in ("linear", "nearest"):
+        tex = volume_texture(Volume(data), filter=filter_mode, precision="half")
+        storage = tex.texture.tensor().array.numpy()
+        sampler = HalfSampler(mi.UInt32(storage.view(np.uint32)), shape[::-1], nearest=filter_mode == "nearest",
+                              normal_only=float_ordered(storage.view(np.uint16)))
+        points = [rng.uniform(-0.2, 1.2, (3, 5000)).astype(np.float32),
+                  np.stack([g.ravel() for g in np.meshgrid(*grid, indexing="ij")])]
+        for p in points:
+            point = mi.Point3f(*(mi.Float(np.ascontiguousarray(c)) for c in p))
+            expected = np.asarray(tex.texture.eval(point)[0])
+            got = np.asarray(sampler(point))
+            assert np.array_equal(got.view(np.uint32), expected.view(np.uint32)), filter_mode
+    assert float_ordered(np.asarray(data, np.float16).view(np.uint16)) == (kind != "tiny")
+
+
+@pytest.mark.parametrize("interpolation", ["trilinear", "nearest"])
+def test_marches_with_word_lookups_equal_texture_marches(mi, interpolation):
+    # the plain march and the brick march read half storage through word gathers; forced back to
+    # the texture's own lookup they give the same bits (phantom and noise, oblique, mip and minip)
+    from pointillist.mip import project_volume
+
+    noisy = shepp_logan_phantom(24) + RNG.normal(0, 20, (24, 24, 24)).round().astype(np.int16)
+    for volume in (shepp_logan_phantom((20, 18, 22)), noisy):
+        for mode in ("mip", "minip", "average"):
+            images = []
+            for texture in (False, True):
+                integrator = mi.load_dict({"type": "mip", "interpolation": interpolation, "mode": mode,
+                                           "skip_bricks": mode != "average"})
+                integrator.set_volume(Volume(volume))
+                if texture:
+                    tex = integrator._tex.texture
+                    integrator._sampler = lambda p, tex=tex: tex.eval(mi.Point3f(p))[0]
+                else:
+                    assert type(integrator._lookup()).__name__ == "HalfSampler"
+                image, _ = project_volume(volume, integrator=integrator, view=None, azimuth=30.0, elevation=20.0,
+                                          size=(40, 36))
+                images.append(image)
+            assert _same_bits(*images), mode
+
+
+@pytest.mark.parametrize("shape", [(20, 17, 22), (8, 8, 8), (9, 16, 10), (1, 3, 2), (33, 5, 18)])
+def test_brick_grid_from_words_equals_the_numpy_grid(mi, rng, shape):
+    # the Dr.Jit brick grid over the stored halves: the same per-brick maxima and minima (dilated by
+    # one voxel, clipped at the faces, partial bricks at the far faces) as brick_grid of the data
+    from pointillist.imaging.volumes import volume_texture
+    from pointillist.plugins.integrators._mip_accel import brick_grid, brick_grid_words, float_ordered
+
+    data = rng.integers(-3000, 3000, shape).astype(np.int16)
+    data[0, 0, 0], data[-1, -1, -1] = 32000, -32000  # extremes on the corners (outside half's exact range)
+    for volume in (data, shepp_logan_phantom(shape)):
+        tex = volume_texture(Volume(volume), precision="half")
+        storage = tex.texture.tensor().array.numpy()
+        for brick in (8, 4):
+            upper, lower = brick_grid_words(mi.UInt32(storage.view(np.uint32)), shape, brick=brick,
+                                            normal_only=float_ordered(storage.view(np.uint16)))
+            if tex.exact:
+                expected = brick_grid(volume, brick=brick, offset=tex.offset)
+            else:
+                expected = brick_grid(storage.reshape(shape), brick=brick)
+            assert np.array_equal(upper, expected[0]) and np.array_equal(lower, expected[1])
+    with pytest.raises(ValueError, match="even x size"):
+        brick_grid_words(mi.UInt32(np.zeros(8, np.uint32)), (2, 2, 3))
+
+
+@pytest.mark.parametrize("size", [(23, 17), (16, 16), (5, 3), (1, 1)])
+def test_tiled_ray_order_gives_the_same_image(mi, monkeypatch, size):
+    # project() casts its rays in 4 x 4 pixel blocks (partial blocks at the far edges pad with lanes
+    # that are not written); rows of pixels give the same image, oblique and axis-aligned
+    import pointillist.plugins.integrators.mip as mip_module
+    from pointillist.mip import project_volume
+
+    volume = VOLUMES["phantom_int16"]
+    for view in (dict(view=None, azimuth=30.0, elevation=20.0), dict(view="coronal")):
+        images = []
+        for tile in (mip_module.TILE, 1):
+            monkeypatch.setattr(mip_module, "TILE", tile)
+            images.append(project_volume(volume, size=size, **view)[0])
+        assert _same_bits(*images), view
+
+
+def test_axial_fold_on_new_slices_and_shapes(mi, rng):
+    # repeated axial folds (the kernels are reused): new data of the same shape, another shape, mip
+    # and minip, keys and floats all give numpy's maxima and minima
+    from pointillist.plugins.integrators._mip_accel import half_slices, reduce_half_words
+
+    for shape in ((40, 6, 16), (40, 6, 16), (9, 4, 8), (40, 6, 16)):
+        vol = rng.integers(-2048, 2049, shape).astype(np.float16)
+        words = mi.UInt32(vol.view(np.uint32).ravel()) + 0
+        slices = half_slices(words, shape)
+        for mode, reduce in (("mip", np.max), ("minip", np.min)):
+            for floats in (False, True):
+                got = reduce_half_words(words, shape, 2, mode, floats=floats, slices=slices, group=8)
+                assert np.array_equal(np.asarray(got), reduce(vol, axis=0).astype(np.float32).ravel())
 
 
 def test_half_keys_order_every_finite_float16(mi):

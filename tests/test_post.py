@@ -229,3 +229,21 @@ def test_steps_take_and_pass_uint8_tensors(tmp_path, rng):
     applied = apply_steps(TensorXu8(grey8), "gamma:2.2;sobel")
     expected = apply_steps(grey8.astype(np.float32), "gamma:2.2;sobel")
     np.testing.assert_array_equal(np.asarray(applied.image), np.asarray(expected.image))
+
+
+def test_eight_bit_chains_equal_the_chains_of_their_float_conversion():
+    # 8-bit input stays bytes up to the first step that does not take them (grey reads the bytes):
+    # the same float32 result, bit for bit, as the chain run on the float32 image
+    from skimage import data
+
+    from pointillist.post import apply_steps
+    from pointillist.steps import steps
+
+    assert [name for name, spec in steps().items() if spec.takes_bytes] == ["grey"]
+    rng = np.random.default_rng(21)
+    for image in (data.astronaut(), rng.integers(0, 256, (67, 45, 3), dtype=np.uint8), data.camera()):
+        for chain in ("grey;gamma:2.2;sobel;normalize;threshold:level=128", "grey;equalize", "gamma:1.4;grey",
+                      "grey", "sobel;normalize"):
+            got = np.asarray(apply_steps(image, chain).image)
+            expected = np.asarray(apply_steps(image.astype(np.float32), chain).image)
+            assert got.dtype == expected.dtype and np.array_equal(got.view(np.uint8), expected.view(np.uint8)), chain

@@ -41,6 +41,29 @@ def test_finite_extrema_fold_matches_numpy(rng):
     assert finite_extrema(Float(np.full(20_000, np.nan, np.float32))) is None
 
 
+@pytest.mark.parametrize("shape, ring", [((150, 130), (1, 1)), ((301, 203, 3), (2, 3)), ((70, 1100), (0, 4)),
+                                         ((40, 40), (5, 0)), ((9, 4000), (1, 1))])
+def test_finite_extrema_of_absolute_values_inside_a_ring_matches_numpy(rng, shape, ring):
+    # one pass over the source: |values|, the ring left out, 16 bands of whole interior rows + the
+    # rows left over (and, for 9 x 4000, too few rows per band: numpy alone)
+    from drjit.llvm import Float
+
+    values = (rng.standard_normal(shape) * 100).astype(np.float32)
+    values.reshape(-1)[rng.integers(0, values.size, 40)] = np.nan
+    ry, rx = ring
+    values[:ry] = 1e6                       # huge values in the ring must not count
+    values[:, :rx] = -1e6
+    values[-1, -1] = np.inf
+    interior = np.abs(values[ry:shape[0] - ry, rx:shape[1] - rx])
+    finite = interior[np.isfinite(interior)]
+    expected = (float(finite.min()), float(finite.max()))
+    assert finite_extrema(Float(values.ravel()), absolute=True, shape=shape, ring=ring) == expected
+    signed = values[ry:shape[0] - ry, rx:shape[1] - rx]
+    signed = signed[np.isfinite(signed)]
+    assert finite_extrema(Float(values.ravel()), shape=shape, ring=ring) == (float(signed.min()), float(signed.max()))
+    assert finite_extrema(Float(values.ravel()), shape=shape, ring=(shape[0], 0)) is None
+
+
 def test_normalize_large_image_matches_numpy(rng):
     img = (rng.standard_normal((150, 130)) * 50).astype(np.float32)
     img[3, 4] = np.nan

@@ -209,6 +209,34 @@ def test_textures_are_compact_and_exact(rng, mi):
     assert np.isnan(nan.minimum) and np.isnan(nan.maximum)
 
 
+@pytest.mark.parametrize("dtype, low, high, shape", [(np.int16, -1000, 1200, (20, 30, 40)),
+                                                     (np.int16, -32768, 32767, (7, 9, 10)),
+                                                     (np.uint16, 0, 65535, (8, 9, 10)),
+                                                     (np.uint16, 100, 3000, (8, 9, 10)),
+                                                     (np.uint8, 0, 256, (5, 7, 9)),
+                                                     (np.int16, -5, 5, (3, 3, 3))])
+def test_half_storage_of_integers_equals_numpys_conversion(rng, mi, monkeypatch, dtype, low, high, shape):
+    # 8- and 16-bit integers go to half precision in one Dr.Jit pass (16-bit read as words); the
+    # stored halves equal numpy's slab-by-slab conversion, exact (offset subtracted) or rounded
+    # (forced half on a wide range), and an odd voxel count (no whole words) takes numpy's way
+    data = rng.integers(low, high, shape).astype(dtype)
+    for precision in ("auto", "half"):
+        ours = volume_texture(data, precision=precision)
+        with monkeypatch.context() as patch:
+            patch.setattr(volumes, "_half_of_integers", lambda *args: None)
+            numpy_way = volume_texture(data, precision=precision)
+        assert (ours.precision, ours.offset, ours.exact, ours.nbytes) == \
+            (numpy_way.precision, numpy_way.offset, numpy_way.exact, numpy_way.nbytes)
+        a = np.asarray(ours.texture.tensor().array).view(np.uint16 if ours.precision == "half" else np.uint32)
+        b = np.asarray(numpy_way.texture.tensor().array).view(a.dtype)
+        assert np.array_equal(a, b)
+    import drjit as dr
+
+    whole_words = data.size % 2 == 0 or dtype == np.uint8
+    assert (volumes._half_of_integers(data, 0.0, dr.llvm.ad) is not None) == whole_words
+    assert volumes._half_of_integers(data.astype(np.float32), 0.0, dr.llvm.ad) is None  # numpy converts floats
+
+
 def test_volume_validation():
     with pytest.raises(ValueError, match="3-D"):
         Volume(np.zeros((2, 2)))

@@ -20,6 +20,11 @@ __all__ = ["MIPIntegrator", "MODES", "MAX_RAY_SAMPLES"]
 #: Projection modes (the ones napari and VTK offer).
 MODES = ("mip", "minip", "average")
 
+#: :meth:`MIPIntegrator.project` casts its rays in blocks of TILE x TILE pixels (the lanes of a SIMD packet
+#: a 4 x 4 block instead of 16 pixels of a row): neighbouring rays read neighbouring texels, so the
+#: gathers of a packet touch fewer cache lines (oblique 512^3 views: 20-25 % faster; same values).
+TILE = 4
+
 #: The most samples one ray may take (the box's diagonal over the step): a smaller step, or a
 #: spacing so anisotropic that the step (in voxels of the smallest spacing) is that fine, is refused.
 MAX_RAY_SAMPLES = 2**20
@@ -186,6 +191,9 @@ class MIPIntegrator(mi.SamplingIntegrator):
         if self.patient_space:
             self._orient[:3, :3] = volume.directions
         self._finite = None  # whether the stored voxels are all finite (computed when needed)
+        self._ordered = None  # whether half storage words compare as float32 (see _float_ordered)
+        self._words = None  # half storage as UInt32 words and its slice views (column reductions)
+        self._sampler = None  # the marches' texture lookup (see _lookup)
         self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
         self._flat = None  # per-brick constant value, NaN where the brick is not constant
 
@@ -261,16 +269,21 @@ class MIPIntegrator(mi.SamplingIntegrator):
         largest voxel by at most ``13 * 2^-24 * M`` (M = largest magnitude), so the bounds are
         widened by ``2^-16 * M`` and rounded outwards.
         """
-        from pointillist.plugins.integrators._mip_accel import BRICK, brick_grid
+        from pointillist.plugins.integrators._mip_accel import BRICK, brick_grid, brick_grid_words
 
         if self._bricks is None:
             tex = self._tex
-            if tex.precision == "half" and not tex.exact:
-                nz, ny, nx = self.volume.data.shape
-                source, offset = self._storage().numpy().reshape(nz, ny, nx), 0.0
+            nz, ny, nx = self.volume.data.shape
+            if tex.precision == "half" and nx % 2 == 0 and self.storage_finite() and self._float_ordered():
+                # from the stored halves on both cores (one Dr.Jit kernel; the same values: the
+                # storage holds the data less the offset, exactly or as the marches see it)
+                upper, lower = brick_grid_words(self._half_words()[0], (nz, ny, nx), brick=BRICK, normal_only=True)
             else:
-                source, offset = self.volume.data, tex.offset
-            upper, lower = brick_grid(source, brick=BRICK, offset=offset)
+                if tex.precision == "half" and not tex.exact:
+                    source, offset = self._storage().numpy().reshape(nz, ny, nx), 0.0
+                else:
+                    source, offset = self.volume.data, tex.offset
+                upper, lower = brick_grid(source, brick=BRICK, offset=offset)
             # flat bricks (every voxel a lookup can touch holds the same finite value c):
             # their samples are computed from c without reading voxels (see _flat_sample)
             flat = np.where((upper == lower) & np.isfinite(upper), upper, np.nan).astype(np.float32)
@@ -324,7 +337,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
         ``lower >= acc``), all samples up to the ray's exit from that brick are skipped: each
         lies inside the brick's box (or within float rounding of it, far less than the one
         voxel of dilation), so its value is bounded and ``max(acc, v) == acc``. A brick of NaN
-        voxels only (bounds -inf / +inf) holds only NaN samples, which the march skips too.
+        voxels only (bounds -inf / +inf) holds only NaN samples, which the march skips too. A brick
+        that is not skipped takes two samples an iteration (k and k + 1 when k + 1 is still in the
+        run: one brick look-up for both; the second is taken even if the first already made the
+        brick idle, which cannot change the result).
 
         A *flat* brick (every voxel its lookups can touch holds one finite value c) is not
         skipped unless its bound allows it, but its samples are computed from c
@@ -345,7 +361,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         t0, t1, hit = self._clip(o, d, ray.maxt, active)
         segments, dt = self._schedule(d, t0, t1, hit)
         count = mi.UInt32(segments) + dr.select(hit, 1, 0)
-        tex = self._tex.texture
+        lookup = self._lookup()
         nx, ny, nz = self.volume.shape_xyz
         cells = mi.Vector3i(grid[2], grid[1], grid[0])
         # texture coordinates -> brick coordinates, and brick size in texture coordinates
@@ -398,14 +414,18 @@ class MIPIntegrator(mi.SamplingIntegrator):
                     seen += 1
                     k += 1
             else:
-                v = tex.eval(mi.Point3f(p))[0]
-                ok = ~dr.isnan(v)
-                if dr.hint(maximum, mode="scalar"):
-                    acc = dr.select(ok, dr.maximum(acc, v), acc)
-                else:
-                    acc = dr.select(ok, dr.minimum(acc, v), acc)
-                seen += dr.select(ok, 1, 0)
-                k += 1
+                # sample k and, when the run has it, sample k + 1 (the same brick: one brick look-up
+                # for two samples; taking it even if sample k raised acc past the bound is harmless)
+                second = k + 1 < end
+                for j in range(2):
+                    v = lookup(p if j == 0 else dr.fma(d, dr.fma(mi.Float(k + 1), dt, t0), o))
+                    ok = ~dr.isnan(v) if j == 0 else ~dr.isnan(v) & second
+                    if dr.hint(maximum, mode="scalar"):
+                        acc = dr.select(ok, dr.maximum(acc, v), acc)
+                    else:
+                        acc = dr.select(ok, dr.minimum(acc, v), acc)
+                    seen += dr.select(ok, 1, 0)
+                k = dr.select(second, k + 2, k + 1)
         valid = seen > 0
         offset = dr.opaque(mi.Float, self._tex.offset)
         value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
@@ -458,25 +478,26 @@ class MIPIntegrator(mi.SamplingIntegrator):
         o, d = to_tex @ ray.o, to_tex @ ray.d
         maxt = mi.Float(ray.maxt)
         dr.eval(o, d, maxt)
-        on, dn, mn = np.asarray(o), np.asarray(d), np.asarray(maxt)
-        if on.ndim != 2 or on.shape[1] == 0:
+        if dr.width(maxt) == 0:
             return None
-        moving = np.flatnonzero(np.any(dn != 0, axis=1))
+        # reductions over the rays (Dr.Jit, both cores) rather than numpy copies of them
+        moving = [k for k in range(3) if bool(dr.any(d[k] != 0))]
         if len(moving) != 1:
             return None
-        a = int(moving[0])
-        if not (np.all(dn[a] == dn[a, 0]) and np.all(on[a] == on[a, 0]) and np.all(mn == mn[0])):
+        a = moving[0]
+        first_o, first_d, first_t = (float(values[0]) for values in (o[a], d[a], maxt))
+        if not bool(dr.all((d[a] == first_d) & (o[a] == first_o) & (maxt == first_t))):
             return None
         b, c = [k for k in range(3) if k != a]
         nx, ny, nz = self.volume.shape_xyz
         res = (nx, ny, nz)
         # one representative ray: inside across the axis, so its slab test equals every hit ray's
         rep_o = [0.5, 0.5, 0.5]
-        rep_o[a] = float(on[a, 0])
+        rep_o[a] = first_o
         rep_d = [0.0, 0.0, 0.0]
-        rep_d[a] = float(dn[a, 0])
+        rep_d[a] = first_d
         ro, rd = mi.Point3f(*rep_o), mi.Vector3f(*rep_d)
-        t0, t1, hit = self._clip(ro, rd, mi.Float(float(mn[0])))
+        t0, t1, hit = self._clip(ro, rd, mi.Float(first_t))
         segments, dt = self._schedule(rd, t0, t1, hit)
         average = self.mode == "average"
         dr.eval(t0, segments, dt, hit)
@@ -538,16 +559,58 @@ class MIPIntegrator(mi.SamplingIntegrator):
         value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
         return value, valid
 
+    def _float_ordered(self) -> bool:
+        """Whether the half storage's words compare as float32 (no -0, nothing below 2^-17 in
+        magnitude: ``_mip_accel.float_ordered``); computed once per volume. Integers stored exactly
+        (16-bit CT less its integer offset) are by construction; other data is scanned once."""
+        from pointillist.plugins.integrators._mip_accel import float_ordered
+
+        if self._ordered is None:
+            data = self.volume.data
+            if np.issubdtype(data.dtype, np.integer) and self._tex.exact:
+                self._ordered = True
+            else:
+                bits = self._storage().numpy().view(np.uint16).reshape(data.shape[0], -1)
+                self._ordered = all(float_ordered(bits[z:z + 64]) for z in range(0, len(bits), 64))
+        return self._ordered
+
+    def _half_words(self):
+        """``(words, slices)``: the half storage as UInt32 words (the same memory, two voxels a word)
+        and its zero-copy z slices, made once per volume (needs an even voxel count)."""
+        from pointillist.plugins.integrators._mip_accel import half_slices
+
+        if self._words is None:
+            words = mi.UInt32(self._storage().numpy().view(np.uint32))
+            self._words = (words, half_slices(words, self.volume.data.shape))
+        return self._words
+
+    def _lookup(self):
+        """The texture lookup of the marches: ``p -> value`` (float32, the texture's bits).
+
+        Finite half storage with an even voxel count is read through 32-bit word gathers
+        (``_mip_accel.HalfSampler``: hardware gathers instead of 16-bit gathers that LLVM splits
+        into scalar loads); anything else through the texture itself."""
+        from pointillist.plugins.integrators._mip_accel import HalfSampler
+
+        if self._sampler is None:
+            tex = self._tex.texture
+            self._sampler = lambda p: tex.eval(mi.Point3f(p))[0]
+            if self._tex.precision == "half" and self.volume.data.size % 2 == 0 and self.storage_finite():
+                self._sampler = HalfSampler(self._half_words()[0], self.volume.shape_xyz,
+                                            nearest=self.interpolation == "nearest",
+                                            normal_only=self._float_ordered())
+        return self._sampler
+
     def _column_values(self, axis: int, *, reverse: bool, repeats: int):
         """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
-        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_keys
+        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_words
 
         shape = self.volume.data.shape
         storage = self._storage()
         finite = self.storage_finite()
         if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
-            words = mi.UInt32(storage.numpy().view(np.uint32))  # the same memory, two halves a word
-            values = reduce_half_keys(words, shape, axis, self.mode)
+            words, slices = self._half_words()
+            values = reduce_half_words(words, shape, axis, self.mode, floats=self._float_ordered(), slices=slices)
             return values, dr.full(mi.UInt32, 1, dr.width(values))
         return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
                               has_nan=not finite)
@@ -589,7 +652,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         average = self.mode == "average"
         count = mi.UInt32(segments) if average else mi.UInt32(segments) + dr.select(hit, 1, 0)
         shift = 0.5 if average else 0.0
-        tex = self._tex.texture
+        lookup = self._lookup()
         if self.mode == "mip":
             acc = dr.full(mi.Float, -dr.inf, dr.width(o))
         elif self.mode == "minip":
@@ -601,7 +664,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         while dr.hint(k < count, label="mip_march"):
             t = dr.fma(mi.Float(k) + shift, dt, t0)
             p = dr.fma(d, t, o)
-            v = tex.eval(mi.Point3f(p))[0]
+            v = lookup(p)
             ok = ~dr.isnan(v)
             if dr.hint(self.mode == "mip", mode="scalar"):
                 acc = dr.select(ok, dr.maximum(acc, v), acc)
@@ -629,12 +692,27 @@ class MIPIntegrator(mi.SamplingIntegrator):
         value, valid = self.project_rays(mi.Ray3f(ray), active)
         return mi.Spectrum(self.display(value)), mi.Bool(active), []
 
-    def _sensor_rays(self, sensor, spp: int, seed: int):
+    def _sensor_rays(self, sensor, spp: int, seed: int, tile: int = 1):
+        """``(ray, pos, (width, height), pixel, real)``: the sensor's rays, ``spp`` a pixel, or with
+        ``tile > 1`` (``spp = 1``) one a pixel with the lanes in ``tile x tile`` blocks of pixels
+        (``pixel``: each lane's pixel index; ``real``: false for the lanes that pad the blocks at
+        the far edges, which repeat an edge pixel)."""
         film = sensor.film()
         width, height = (int(s) for s in film.crop_size())
-        count = width * height * spp
-        idx = dr.arange(mi.UInt32, count)
-        pixel = idx // spp if spp > 1 else idx
+        real = True
+        if tile > 1:
+            across, down = -(-width // tile), -(-height // tile)
+            idx = dr.arange(mi.UInt32, across * down * tile * tile)
+            block, within = idx // (tile * tile), idx % (tile * tile)
+            x = (block % across) * tile + within % tile
+            y = (block // across) * tile + within // tile
+            real = (x < width) & (y < height)
+            pixel = dr.minimum(y, height - 1) * width + dr.minimum(x, width - 1)
+            count = dr.width(idx)
+        else:
+            count = width * height * spp
+            idx = dr.arange(mi.UInt32, count)
+            pixel = idx // spp if spp > 1 else idx
         pos = mi.Vector2f(mi.Float(pixel % width), mi.Float(pixel // width))
         if spp == 1:
             pos += 0.5
@@ -647,15 +725,17 @@ class MIPIntegrator(mi.SamplingIntegrator):
         pos += mi.Vector2f(film.crop_offset())
         ray, _ = sensor.sample_ray(0.0, 0.0, pos * dr.rcp(mi.ScalarVector2f(film.size())),
                                    mi.Point2f(0.5, 0.5))
-        return ray, pos, (width, height)
+        return ray, pos, (width, height), pixel, real
 
     def project(self, scene, sensor=0) -> mi.TensorXf:
         """Raw projected values ``(H, W)`` with one ray through each pixel centre (evaluated)."""
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        ray, _, (width, height) = self._sensor_rays(sensor, 1, 0)
+        ray, _, (width, height), pixel, real = self._sensor_rays(sensor, 1, 0, TILE)
         value, _ = self.project_rays(ray)
-        image = mi.TensorXf(value, shape=(height, width))
+        image = dr.empty(mi.Float, width * height)
+        dr.scatter(image, value, pixel, real)
+        image = mi.TensorXf(image, shape=(height, width))
         dr.eval(image)
         return image
 
@@ -665,7 +745,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         film = sensor.film()
         spp = int(spp or sensor.sampler().sample_count())
         film.prepare([])
-        ray, pos, _ = self._sensor_rays(sensor, spp, seed)
+        ray, pos, *_ = self._sensor_rays(sensor, spp, seed)
         value, _ = self.project_rays(ray)
         block = film.create_block()
         block.put(pos, [], self.display(value), 1.0, 1.0)

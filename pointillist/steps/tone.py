@@ -51,7 +51,7 @@ def _hsv(image, hue=0.0, saturation=1.0, value=1.0):
     return colour.adjust_hsv(image, hue=hue, saturation=saturation, value=value, max_value=255.0)
 
 
-@step("grey", help="Rec. 709 weighted grey (luma of display values); grey input unchanged")
+@step("grey", help="Rec. 709 weighted grey (luma of display values); grey input unchanged", takes_bytes=True)
 def _grey(image):
     return colour.luminance(image, max_value=255.0)
 
