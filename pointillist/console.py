@@ -31,7 +31,9 @@ def main() -> None:
 
     signals.install("pointillist")
     if _HELD is not None:
-        signal.pthread_sigmask(signal.SIG_SETMASK, _HELD)  # a signal held so far is recorded now
+        # let the two through (a signal held so far is recorded now), also when the process was
+        # started with them blocked: an inherited mask would otherwise hold them for ever
+        signal.pthread_sigmask(signal.SIG_SETMASK, _HELD - {signal.SIGINT, signal.SIGTERM})
     try:
         from pointillist.cli import main as command_line
 

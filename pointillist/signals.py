@@ -19,6 +19,11 @@ console script does) the handlers only record the signal:
 
 Outside the boundary (library use, a notebook) nothing changes: :func:`check` does nothing, and
 Python's own handlers stay.
+
+A process can inherit SIGINT and SIGTERM *blocked* (the signal mask survives ``exec``: some CI
+runners and service managers start their children that way). A blocked signal is never delivered,
+so the boundary unblocks the two in the main thread while it is installed (the mask comes back when
+it is removed): a command that promises 130 / 143 keeps the promise whoever started it.
 """
 
 from __future__ import annotations
@@ -64,6 +69,10 @@ class _Boundary:
         self.stopping = False
         self.watcher = threading.Thread(target=self._watch, name="pointillist-signals", daemon=True)
         self.watcher.start()
+        # unblock the two (an inherited blocked mask would hold them for ever); the watcher keeps
+        # the mask it was started with, so the signals land in the main thread as before
+        self.previous_mask = (signal.pthread_sigmask(signal.SIG_UNBLOCK, SIGNALS)
+                              if hasattr(signal, "pthread_sigmask") else None)
 
     # -- the pipe: every signal lands there as one byte (written by Python's C-level handler)
     def drain(self) -> None:
@@ -113,6 +122,8 @@ class _Boundary:
         with contextlib.suppress(OSError):
             os.write(self.write_fd, b"\0")  # wakes the watcher, which sees `stopping`
         self.watcher.join(5)
+        if self.previous_mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self.previous_mask)
         for fd in (self.read_fd, self.write_fd):
             with contextlib.suppress(OSError):
                 os.close(fd)

@@ -655,7 +655,7 @@ def test_neurological_leaves_the_sagittal_view_and_refuses_a_turntable(mi, tmp_p
 
 def test_native_size_equals_numpy_max_exactly_only_with_nearest(mi, rng):
     """The README said --native-size equals numpy.max exactly; with the default trilinear lookups
-    it agrees to float32 rounding, a few 1e-6 of the largest value (as the README now says)."""
+    it agrees to float32 rounding, a few 1e-6 of the largest value (as the MIP guide now says)."""
     from pointillist.imaging.volumes import Volume
     from pointillist.mip import project_volume
 

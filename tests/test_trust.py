@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, SCENES
 
 from pointillist.errors import UsageError
 
@@ -643,9 +643,17 @@ def test_library_use_keeps_the_pass_in_flight(mi, monkeypatch):
     assert signal.getsignal(signal.SIGINT) is before
 
 
-def test_signal_boundary_records_and_raises_only_at_safe_points():
+def _block_signals() -> None:
+    """``preexec_fn``: the child starts with SIGINT and SIGTERM blocked, as some CI runners start
+    their children (the mask survives exec)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
+@pytest.mark.parametrize("inherited", ["clear mask", "blocked mask"])
+def test_signal_boundary_records_and_raises_only_at_safe_points(inherited):
     """Under the boundary a signal never raises where it lands; check() raises it; outside it, the
-    default handlers are back."""
+    default handlers (and the mask the process had) are back. A process started with the two
+    signals blocked gets them all the same."""
     code = textwrap.dedent("""
         import os, signal
         from pointillist import signals
@@ -663,8 +671,27 @@ def test_signal_boundary_records_and_raises_only_at_safe_points():
         signals.check()
         print("ok")
     """)
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          preexec_fn=_block_signals if inherited == "blocked mask" else None)
     assert done.returncode == 0 and done.stdout.split() == ["raised", "at", "the", "safe", "point", "ok"], done.stderr
+
+
+def test_a_command_started_with_the_signals_blocked_still_ends_with_143(tmp_path):
+    """The console script unblocks SIGINT/SIGTERM: a render started by a parent that blocked them
+    (the mask survives exec) still stops on SIGTERM with 143 and one line, whenever it lands."""
+    out = tmp_path / "long.exr"
+    process = subprocess.Popen([sys.executable, "-m", "pointillist", "render", str(SCENES / "default.xml"),
+                                "-o", str(out), "--time", "20"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                               preexec_fn=_block_signals)
+    try:
+        time.sleep(2.0)  # importing or rendering: either way the signal must end it
+        process.send_signal(signal.SIGTERM)
+        stdout, stderr = process.communicate(timeout=90)
+    finally:
+        process.kill()
+    assert process.returncode == 143, stderr
+    assert len(stderr.strip().splitlines()) == 1 and "terminated" in stderr, stderr
 
 
 # -- every command, interrupted at 20 moments of its start (issue 26's "must hold")
