@@ -9,9 +9,11 @@ unexpected error). Ctrl-C exits with 130, SIGTERM with 143 (:mod:`pointillist.si
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import pkgutil
+import select
 import signal
 import sys
 
@@ -99,6 +101,11 @@ def _run(args: argparse.Namespace, name: str) -> int:
             signum = signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT
         print(f"{name}: {signals.message(signum)}", file=sys.stderr)
         return signals.status(signum)
+    except BrokenPipeError as error:
+        if _stdout_closed():  # `pointillist post --list-steps | head`: the reader has all it wanted
+            return STATUS_BROKEN_PIPE
+        print(f"{name}: error: {_os_message(error)}", file=sys.stderr)
+        return 2
     except OSError as error:  # a file or folder that cannot be read or written
         if os.environ.get("POINTILLIST_DEBUG"):
             raise
@@ -118,6 +125,28 @@ def _run(args: argparse.Namespace, name: str) -> int:
         print(f"{name}: internal error: {type(error).__name__}: {error} "
               "(POINTILLIST_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+
+
+#: Exit status when the reader of stdout went away (``| head``): 128 + SIGPIPE, silently, as a
+#: Unix tool killed by SIGPIPE ends (Python ignores SIGPIPE, so the write raises instead).
+STATUS_BROKEN_PIPE = 128 + 13
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout's reader is gone (a pipe with no reader polls as an error); if so stdout is
+    pointed at /dev/null, so that nothing (the interpreter's last flush included) writes there
+    again."""
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        closed = any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no real stdout (a notebook, a closed stream)
+        return False
+    if closed:
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+    return closed
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import numpy as np
@@ -247,3 +248,20 @@ def test_eight_bit_chains_equal_the_chains_of_their_float_conversion():
             got = np.asarray(apply_steps(image, chain).image)
             expected = np.asarray(apply_steps(image.astype(np.float32), chain).image)
             assert got.dtype == expected.dtype and np.array_equal(got.view(np.uint8), expected.view(np.uint8)), chain
+
+
+def test_list_steps_into_a_closed_pipe_ends_quietly_with_141():
+    """`pointillist post --list-steps | head -1`: the reader leaves early; the command ends as a Unix
+    tool killed by SIGPIPE does (status 141, nothing on stderr), not with "error: Broken pipe"."""
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the first write
+    try:
+        done = subprocess.run([sys.executable, "-c", "from pointillist.console import main; main()",
+                               "post", "--list-steps"], stdout=write_end, stderr=subprocess.PIPE, text=True,
+                              timeout=120)
+    finally:
+        os.close(write_end)
+    assert done.returncode == 141 and done.stderr == "", (done.returncode, done.stderr)
