@@ -16,6 +16,7 @@ import pkgutil
 import select
 import signal
 import sys
+import warnings
 
 from pointillist import __version__, signals
 from pointillist.errors import Terminated, UsageError
@@ -74,11 +75,12 @@ def main(argv: list[str] | None = None) -> int:
     143 (SIGTERM), with one line on stderr. A signal that arrives after the last safe point still
     makes the status 130 / 143.
     """
-    with signals.boundary():
+    with signals.boundary(), warnings.catch_warnings():
         parser = build_parser()
         args = parser.parse_args(argv)
         name = f"pointillist {args.command}"
         signals.set_command(name)
+        warnings.showwarning = _warning_line(name)
         status = _run(args, name)
         signum = signals.received()
         if signum is not None and status == 0:
@@ -125,6 +127,23 @@ def _run(args: argparse.Namespace, name: str) -> int:
         print(f"{name}: internal error: {type(error).__name__}: {error} "
               "(POINTILLIST_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+
+
+def _warning_line(name: str):
+    """A ``warnings.showwarning`` for the command line: each warning once, as one line
+    ``NAME: warning: MESSAGE`` (not Python's file, line number and source line, nor once per place
+    that warns: a plugin configured twice says it once)."""
+    shown: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if text in shown:
+            return
+        shown.add(text)
+        with contextlib.suppress(Exception):
+            print(f"{name}: warning: {text}", file=sys.stderr if file is None else file)
+
+    return show
 
 
 #: Exit status when the reader of stdout went away (``| head``): 128 + SIGPIPE, silently, as a

@@ -110,3 +110,25 @@ def test_plugin_constructor_errors_are_one_line_without_traceback(capsys, mi):
     assert "Traceback" not in err[0] and 'File "' not in err[0]
     expected = 'integrator plugin of type "adaptive": ValueError: adaptive: expected exactly one nested integrator'
     assert expected in err[0]
+
+
+def test_a_plugin_warning_is_one_line_said_once(tmp_path, cli):
+    """A plugin that warns (jitter at a prime count, configured twice by Mitsuba) shows one line
+    ``pointillist render: warning: ...``, not Python's file, line number and source line twice."""
+    scene = tmp_path / "prime.xml"
+    scene.write_text("""<scene version="3.0.0">
+  <integrator type="direct"/>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+    <sampler type="jitter"><integer name="sample_count" value="3"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+      <rfilter type="box"/></film>
+  </sensor>
+  <shape type="sphere"/>
+  <emitter type="constant"/>
+</scene>""")
+    done = cli("render", scene, "-o", tmp_path / "prime.exr")
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith("pointillist render: warning: jitter sampler: sample_count 3 has no"), lines
