@@ -1,7 +1,7 @@
 """Project a CT/MRI volume: maximum (minimum, average) intensity projection to PNG or EXR.
 
-VOLUME is a Mitsuba .vol, .npy, NRRD (.nrrd/.nhdr), NIfTI (.nii/.nii.gz) file or a folder
-holding DICOM images (values in Hounsfield units; --series picks one of several series).
+VOLUME is a volume file (the formats are listed under `volume` below) or a folder holding
+DICOM images (values in Hounsfield units; --series picks one of several series).
 
 Patient space: every view is anatomical whatever the voxel order. Volumes are placed in
 LPS (x = patient's left, y = posterior, z = superior, as DICOM and ITK) by their
@@ -40,6 +40,7 @@ import argparse
 import sys
 
 from pointillist.commands._types import finite_float, non_negative_int, positive_float, positive_int
+from pointillist.imaging.volumes import volume_formats
 from pointillist.mip import NAMED_VIEWS
 
 NAME = "mip"
@@ -74,7 +75,7 @@ def _spacing(text: str) -> tuple[float, float, float]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist mip`` to ``parser``."""
-    parser.add_argument("volume", help="volume file (.vol, .npy, .nrrd, .nii[.gz]) or DICOM series folder")
+    parser.add_argument("volume", help=f"volume file or folder: {volume_formats()}")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
     views.add_argument("--view", choices=sorted(NAMED_VIEWS), help="named view (default: axial)")
