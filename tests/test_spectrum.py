@@ -4,7 +4,6 @@ and properties over arbitrary arrays."""
 
 from __future__ import annotations
 
-import doctest
 import math
 
 import numpy as np
@@ -13,7 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pointillist.imaging import spectrum as spectrum_module
 from pointillist.imaging.metrics import error_spectrum, image_errors, luminance_error
 from pointillist.imaging.spectrum import (LOW_FREQUENCY_CUTOFF, NYQUIST, RadialSpectrum, frequency_radius,
                                           log_binned, low_frequency_energy, power_spectrum, radial_power_spectrum)
@@ -163,8 +161,3 @@ def test_error_spectrum_is_the_luminance_errors(rng):
     chroma[..., 1] -= 0.2126
     assert image_errors(chroma, reference, flip=False)["lowfreq"] == pytest.approx(0, abs=1e-20)
     assert math.isnan(image_errors(np.full((4, 4, 3), np.nan), np.zeros((4, 4, 3)), flip=False)["lowfreq"])
-
-
-def test_docstring_examples_run():
-    result = doctest.testmod(spectrum_module, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted >= 8 and result.failed == 0
