@@ -106,10 +106,15 @@ def test_bad_input_names_the_argument():
         radial_power_spectrum(np.zeros((0, 4)))
     with pytest.raises(TypeError, match="image: expected real numbers"):
         low_frequency_energy(np.zeros((2, 2), complex))
-    for bad in (-0.1, math.nan, math.inf, "0.1", True):
-        with pytest.raises(ValueError, match="cutoff: expected a finite number >= 0"):
+    for bad in (-0.1, math.nan, math.inf):
+        with pytest.raises(ValueError, match="cutoff: expected a (finite )?number"):
             low_frequency_energy(np.zeros((2, 2)), cutoff=bad)
-        with pytest.raises(ValueError, match="max_frequency: expected a finite number >= 0"):
+        with pytest.raises(ValueError, match="max_frequency: expected a (finite )?number"):
+            radial_power_spectrum(np.zeros((2, 2)), max_frequency=bad)
+    for bad in ("0.1", True):
+        with pytest.raises(TypeError, match="cutoff: expected a number"):
+            low_frequency_energy(np.zeros((2, 2)), cutoff=bad)
+        with pytest.raises(TypeError, match="max_frequency: expected a number"):
             radial_power_spectrum(np.zeros((2, 2)), max_frequency=bad)
 
 
@@ -143,7 +148,7 @@ def test_log_binned_keeps_the_energy_of_the_rings(rng):
     assert np.all(np.diff(merged.frequency) > 0) and np.all(np.diff(np.log10(merged.frequency)) > 0.1)
     empty = log_binned(RadialSpectrum(np.array([0.0]), np.array([4.0]), np.array([1])))
     assert empty.frequency.size == 0 and empty.power.size == 0
-    with pytest.raises(ValueError, match="per_decade: expected a positive integer"):
+    with pytest.raises(ValueError, match="per_decade: expected an integer >= 1"):
         log_binned(spectrum, per_decade=0)
 
 

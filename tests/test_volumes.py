@@ -424,7 +424,7 @@ def test_4d_nifti_needs_a_frame(tmp_path, rng):
     np.testing.assert_array_equal(load_volume(tmp_path / "t.nii", frame=2).data, data[..., 2].transpose(2, 1, 0))
     with pytest.raises(ValueError, match="frame: .* is a 3-D volume"):
         load_volume(_npy(tmp_path), frame=1)
-    with pytest.raises(ValueError, match="frame: expected a non-negative integer"):
+    with pytest.raises(ValueError, match="frame: expected an integer >= 0"):
         load_volume(tmp_path / "t.nii", frame=-1)
     nibabel.save(nibabel.Nifti1Image(data[..., 0], np.eye(4)), str(tmp_path / "3d.nii"))
     np.testing.assert_array_equal(load_volume(tmp_path / "3d.nii", frame=0).data, data[..., 0].T)

@@ -11,6 +11,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, UInt8, UInt32
 
+from pointillist import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, divmod_u32, eager_if_shared, is_uint8,
                                         opaque_scalar)
 from pointillist.imaging.wavefront import clip_intensity
@@ -20,7 +21,7 @@ from pointillist.imaging.dither._shared import (_check_bool, _check_levels, _che
 __all__ = ["TEMPLATE_4", "bayer", "clustered_dot", "intensity_thresholds", "ordered", "pattern",
            "halftone", "blue_noise_mask", "blue_noise"]
 
-#: The SPEC's 4 x 4 template (= ``bayer(4)``): a pixel is white where p >= its entry.
+#: The conventions' 4 x 4 template (= ``bayer(4)``): a pixel is white where p >= its entry.
 TEMPLATE_4: np.ndarray = np.array([[1, 9, 3, 11], [13, 5, 15, 7], [4, 12, 2, 10], [16, 8, 14, 6]], dtype=np.int64)
 TEMPLATE_4.setflags(write=False)
 
@@ -33,7 +34,7 @@ def bayer(n: int) -> np.ndarray:
     """The n x n Bayer index matrix (n a power of two), entries 1..n^2 (a template).
 
     Built by the Bayer recursion on 0-based matrices, M_1 = [[0]] and
-    M_2n = [[4 M_n, 4 M_n + 2], [4 M_n + 3, 4 M_n + 1]], plus 1; ``bayer(4)`` is the SPEC's
+    M_2n = [[4 M_n, 4 M_n + 2], [4 M_n + 3, 4 M_n + 1]], plus 1; ``bayer(4)`` is the conventions'
     :data:`TEMPLATE_4`. ``bayer(1)`` is [[1]] (plain thresholding at the middle of 0..255).
 
     Examples
@@ -42,7 +43,8 @@ def bayer(n: int) -> np.ndarray:
     >>> bayer(2).tolist()
     [[1, 3], [4, 2]]
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 or n & (n - 1) or n > 4096:
+    n = checks.integer(n, "n", low=1, high=4096)
+    if n & (n - 1):
         raise ValueError(f"n: expected a power of two from 1 to 4096, got {n!r}")
     m = np.zeros((1, 1), dtype=np.int64)
     while m.shape[0] < n:
@@ -63,8 +65,7 @@ def clustered_dot(n: int) -> np.ndarray:
     >>> clustered_dot(2).tolist()
     [[3, 4], [2, 1]]
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 256:
-        raise ValueError(f"n: expected an integer from 1 to 256, got {n!r}")
+    n = checks.integer(n, "n", low=1, high=256)
     yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
     c = (n - 1) / 2.0
     dy, dx = yy - c, xx - c
@@ -82,10 +83,10 @@ def _intensity(image: Any) -> tuple[TensorXf, Float]:
 
 
 def _ordered_values(values: Float, thresholds: Float, cells: int, levels: int) -> Float:
-    """SPEC ordered rule generalised to ``levels``: p = min(floor(f (n^2+1)), n^2), up where p >= T.
+    """The conventions' ordered rule generalised to ``levels``: p = min(floor(f (n^2+1)), n^2), up where p >= T.
 
     f is the intensity's position inside its gap between two output levels (0..1); for
-    ``levels=2`` that is I / 255 and the rule is exactly the SPEC's.
+    ``levels=2`` that is I / 255 and the rule is exactly the conventions' rule.
     """
     # Written so that every step is exact for integer intensities (products < 2^24, one
     # correctly rounded division whose quotient cannot round across an integer).
@@ -128,12 +129,12 @@ def _template_table(data: bytes, n: int) -> Float:
 
 
 def intensity_thresholds(template: Any) -> np.ndarray:
-    """The SPEC's ordered-dithering rule as one threshold per template entry, on 0..255.
+    """The conventions' ordered-dithering rule as one threshold per template entry, on 0..255.
 
     p = min(floor(I (n^2 + 1) / 255), n^2) >= T holds exactly when I (n^2 + 1) >= 255 T (T <= n^2),
     i.e. when I >= 255 T / (n^2 + 1). Returned is, per entry T, the smallest float32 x with
     x (n^2 + 1) >= 255 T in exact arithmetic (products of a float32 and an integer below 2^29 are
-    exact in float64), so ``I >= table`` is the SPEC rule for EVERY float32 I, not only integers.
+    exact in float64), so ``I >= table`` is the conventions' rule for EVERY float32 I, not only integers.
     For 8-bit input it is the same as I >= ceil(255 T / (n^2 + 1)) (OpenCV's pre-tiled map).
 
     Parameters
@@ -192,7 +193,9 @@ def _ordered_1bit(values: Float, template: np.ndarray, y: UInt32, x: UInt32) -> 
 
 @eager_if_shared
 def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf | TensorXu8:
-    """Ordered dithering (SPEC): one p per pixel, compared with the template entry at that pixel.
+    """Ordered dithering: one p per pixel, compared with the template entry at that pixel.
+
+    As :ref:`conventions-dithering` defines it.
 
     p = min(floor(I (n^2 + 1)), n^2) with I = intensity / 255; the pixel is white where p >= the
     template number at (y mod n, x mod n).
@@ -203,7 +206,7 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
         Intensities on 0..255; NaN -> 0, clipped to 0..255. A numpy ``uint8`` array is read as
         packed bytes (4 per 32-bit word), without a float32 copy.
     template : array_like, (n, n)
-        A permutation of 1..n^2 (default the SPEC's :data:`TEMPLATE_4`; see :func:`bayer`,
+        A permutation of 1..n^2 (default the conventions' :data:`TEMPLATE_4`; see :func:`bayer`,
         :func:`clustered_dot`, :func:`blue_noise_mask`). A 1 x 1 template [[1]] is a threshold at
         255 / 2 (p >= 1 for I >= 1/2).
     levels : int
@@ -244,7 +247,7 @@ _TILED_MAPS = 2
 @lru_cache(maxsize=_TILED_MAPS)
 def _tiled_map(data: bytes, n: int, shape: tuple[int, ...]) -> UInt8:
     """The template's 8-bit thresholds ceil(255 T / (n^2 + 1)) tiled over an image of ``shape``
-    (evaluated, one byte per value): for uint8 I, I >= this is the SPEC rule (see
+    (evaluated, one byte per value): for uint8 I, I >= this is the conventions' rule (see
     :func:`intensity_thresholds`). This is OpenCV's pre-tiled map; reading it is a contiguous
     stream, where the n x n table costs one gather per pixel (about 2x the whole pass here)."""
     channels = shape[2] if len(shape) == 3 else 1
@@ -279,7 +282,7 @@ def _ordered(image: Any, template: np.ndarray, levels: int, linear: bool) -> Ten
 
 @eager_if_shared
 def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: bool = False) -> TensorXf | TensorXu8:
-    """Pattern dithering (SPEC): one p per n x n block from the block's average intensity.
+    """Pattern dithering (:ref:`conventions-dithering`): one p per n x n block from the block's average intensity.
 
     Blocks start at the top-left corner; blocks cut by the right or bottom edge average the
     pixels they have. Each block shows the pattern of its p (white where p >= template number).
@@ -327,7 +330,7 @@ def pattern(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
 
 @eager_if_shared
 def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf | TensorXu8:
-    """Halftoning (SPEC): every pixel becomes an n x n pattern; n^2 + 1 grey levels.
+    """Halftoning (:ref:`conventions-dithering`): every pixel becomes an n x n pattern; n^2 + 1 grey levels.
 
     p = min(floor(I (n^2 + 1)), n^2) with I = intensity / 255; in the pixel's pattern a cell is
     white where p >= its template number. The patterns form a growth sequence (a cell on at
@@ -355,8 +358,7 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf | Tens
     >>> np.asarray(halftone(np.array([[128.0]]), 2)).astype(int).tolist()
     [[0, 0], [255, 255]]
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 64:
-        raise ValueError(f"n: expected an integer from 1 to 64, got {n!r}")
+    n = checks.integer(n, "n", low=1, high=64)
     template = clustered_dot(int(n)) if template is None else _check_template(template)
     if template.shape[0] != n:
         raise ValueError(f"template: expected shape ({n}, {n}), got {template.shape}")

@@ -6,10 +6,10 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 
 #: Voxels per slab when the phantom is evaluated (bounds its temporary memory).
 _PHANTOM_SLAB_VOXELS = 8 << 20
-
 
 #: The ten ellipsoids of the modified 3-D Shepp-Logan phantom (geometry of
 #: M. Schabel's ``phantom3d`` after Kak & Slaney, "Principles of Computerized
@@ -76,11 +76,11 @@ def shepp_logan_phantom(shape: int | tuple[int, int, int] = 64, *, dtype: Any = 
     >>> v.shape, v.dtype, int(v[0, 0, 0]), int(v[16, 16, 16])
     ((32, 32, 32), dtype('int16'), -1000, 40)
     """
-    if isinstance(shape, (int, np.integer)):
-        shape = (int(shape),) * 3
-    shape = tuple(int(s) for s in shape)
-    if len(shape) != 3 or min(shape) < 1:
-        raise ValueError(f"shape: expected a positive int or three positive ints (nz, ny, nx), got {shape}")
+    if isinstance(shape, (tuple, list, np.ndarray)):
+        shape = checks.integers(shape, "shape", 3, low=1)
+    else:
+        shape = (checks.integer(shape, "shape", low=1),) * 3
+    checks.real(background, "background")
     nz, ny, nx = shape
     out = np.empty(shape, dtype=dtype)
 

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
+from pointillist import checks
 from pointillist.imaging.volumes._model import Volume
 
 
@@ -148,8 +147,8 @@ def load_volume(path: str | os.PathLike, *, spacing: Any = None, frame: int | No
     """
     path = Path(path)
     name = path.name.lower()
-    if frame is not None and (isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or frame < 0):
-        raise ValueError(f"frame: expected a non-negative integer, got {frame!r}")
+    if frame is not None:
+        checks.integer(frame, "frame", low=0)
     folder_readers = [reader for reader in volume_readers() if reader.folder]
     if path.is_dir() and folder_readers:
         reader, source = folder_readers[0], path

@@ -227,6 +227,8 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     Values = stored * RescaleSlope + RescaleIntercept, kept int16 when slope and
     intercept are integers and the result fits, float32 otherwise.
     """
+    if frame is not None:
+        checks.integer(frame, "frame", low=0)
     try:
         import pydicom
         from pydicom.errors import InvalidDicomError

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _pick_frame, _warn
@@ -66,6 +67,8 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
     volume is read). A ``.nii.gz`` is read to its end, so that a damaged file (its gzip
     CRC-32 or length does not match) is refused rather than read as other voxel values.
     """
+    if frame is not None:
+        checks.integer(frame, "frame", low=0)
     try:
         import nibabel
     except ImportError:
