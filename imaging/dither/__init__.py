@@ -1,4 +1,4 @@
-"""Dithering and halftoning (SPEC "Dithering"): thresholding, error diffusion, halftone patterns,
+"""Dithering and halftoning (:ref:`conventions-dithering`): thresholding, error diffusion, halftone patterns,
 pattern and ordered dithering, Bayer and blue-noise masks, and the dither error.
 
 Every operation takes a numpy array or a Dr.Jit tensor of shape ``(H, W)`` or ``(H, W, C)`` with
@@ -12,7 +12,7 @@ dithered per channel.
 (:func:`pointillist.imaging.arrays.to_uint8`; 0 and 255 exactly for 1-bit output, and e.g. 0, 128,
 255 for ``levels=3``). Float input keeps float32 output.
 
-Conventions fixed by the SPEC: the threshold is 128 and a value ``>=`` the threshold becomes 255;
+Conventions (:ref:`conventions-dithering`): the threshold is 128 and a value ``>=`` the threshold becomes 255;
 simple error diffusion sends 100 % of the error to the next pixel along a serpentine scan;
 Floyd-Steinberg scans left to right and splits the error 7/16 right, 3/16 below-left, 5/16 below
 and 1/16 below-right, dropping the error that would leave the image; a halftone pattern of size

@@ -65,7 +65,7 @@ def _quantiser(levels: int, level: float, linear: bool) -> tuple[np.ndarray, np.
 
     Output levels L_k = k 255 / (levels - 1). In the working space (display, or linear light with
     ``linear``) with values V_k, the threshold between V_{k-1} and V_k lies at the fraction
-    level / 255 of the gap (level 128 of 0..255: the SPEC threshold for 1-bit dithering). A value v
+    level / 255 of the gap (level 128 of 0..255: the conventional threshold for 1-bit dithering). A value v
     becomes level k = the number of thresholds <= v.
     """
     k = np.arange(levels, dtype=np.float64)

@@ -33,7 +33,7 @@ class DiffusionKernel(NamedTuple):
 #: Lee Crocker et al., "DHALF.TXT", 1991, and Ulichney, "Digital Halftoning", 1987).
 KERNELS: dict[str, DiffusionKernel] = {k.name: k for k in (
     DiffusionKernel("floyd_steinberg", ((0, 1, 7), (1, -1, 3), (1, 0, 5), (1, 1, 1)), 16,
-                    "Floyd & Steinberg, Proc. SID 17(2), 1976 (and the SPEC)"),
+                    "Floyd & Steinberg, Proc. SID 17(2), 1976"),
     DiffusionKernel("jarvis_judice_ninke",
                     ((0, 1, 7), (0, 2, 5), (1, -2, 3), (1, -1, 5), (1, 0, 7), (1, 1, 5), (1, 2, 3),
                      (2, -2, 1), (2, -1, 3), (2, 0, 5), (2, 1, 3), (2, 2, 1)), 48,
@@ -53,8 +53,9 @@ KERNELS: dict[str, DiffusionKernel] = {k.name: k for k in (
     DiffusionKernel("sierra_lite", ((0, 1, 2), (1, -1, 1), (1, 0, 1)), 4, "Frankie Sierra, filter lite, 1990"),
 )}
 
-#: The simple error diffusion of the SPEC: 100 % of the error to the next pixel of the scan.
-SIMPLE_KERNEL = DiffusionKernel("simple", ((0, 1, 1),), 1, "SPEC: 100% of the error to the next pixel")
+#: The simple error diffusion of the conventions: 100 % of the error to the next pixel of the scan.
+SIMPLE_KERNEL = DiffusionKernel("simple", ((0, 1, 1),), 1,
+                                "100% of the error to the next pixel (the course's simple diffusion)")
 
 
 
@@ -100,7 +101,7 @@ def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, 
         One of :data:`KERNELS`: ``floyd_steinberg``, ``jarvis_judice_ninke``, ``stucki``,
         ``atkinson``, ``burkes``, ``sierra``, ``sierra_lite``.
     level : float
-        Threshold on 0..255 (SPEC: 128; ``>=`` becomes the upper level). For ``levels > 2`` the
+        Threshold on 0..255 (the conventions: 128; ``>=`` becomes the upper level). For ``levels > 2`` the
         thresholds lie at the same fraction ``level / 255`` of each gap between levels.
     levels : int
         Number of output levels, 2..256, at ``k * 255 / (levels - 1)``. ``levels=256`` leaves
@@ -139,7 +140,9 @@ def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, 
 @eager_if_shared
 def floyd_steinberg(image: Any, level: float = 128, serpentine: bool = False, *, levels: int = 2,
                     linear: bool = False) -> TensorXf | TensorXu8:
-    """Floyd-Steinberg error diffusion (SPEC): 7/16 right, 3/16 below-left, 5/16 below, 1/16 below-right.
+    """Floyd-Steinberg error diffusion: 7/16 right, 3/16 below-left, 5/16 below, 1/16 below-right.
+
+    As :ref:`conventions-dithering` defines it.
 
     Same as ``diffuse(image, "floyd_steinberg", ...)``; see :func:`diffuse` for the parameters,
     the edges of the domain and exactness.
@@ -157,7 +160,9 @@ def floyd_steinberg(image: Any, level: float = 128, serpentine: bool = False, *,
 
 @eager_if_shared
 def error_diffusion(image: Any, level: float = 128, *, levels: int = 2, linear: bool = False) -> TensorXf | TensorXu8:
-    """Simple error diffusion (SPEC): 100 % of each pixel's error goes to the next pixel, serpentine.
+    """Simple error diffusion: 100 % of each pixel's error goes to the next pixel, serpentine.
+
+    As :ref:`conventions-dithering` defines it.
 
     The scan runs left to right on even rows and right to left on odd rows; the next pixel after
     the end of a row is the pixel below it (the first of the next row in the scan), so the error
@@ -169,7 +174,7 @@ def error_diffusion(image: Any, level: float = 128, *, levels: int = 2, linear: 
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Intensities on 0..255 (NaN -> 0, clipped to 0..255).
     level : float
-        Threshold (SPEC 128, ``>=`` goes up).
+        Threshold (the conventions: 128, ``>=`` goes up).
     levels : int
         Output levels 2..256 (see :func:`diffuse`).
     linear : bool

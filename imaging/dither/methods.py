@@ -18,7 +18,9 @@ __all__ = ["DitherError", "DITHER_METHODS", "dither", "dither_options", "dither_
 
 
 class DitherError(NamedTuple):
-    """The error of a dithered image (SPEC): its total and average intensity minus the original's."""
+    """The error of a dithered image: its total and average intensity minus the original's.
+
+    As :ref:`conventions-dithering` defines it."""
 
     total: float
     average: float
@@ -55,7 +57,7 @@ def _kernel_method(kernel: str) -> Any:
 
 #: The methods of :func:`dither`, by name: each a function ``(image, **options)`` whose keyword
 #: parameters are the method's options and defaults. ``ordered``/``bayer`` and ``pattern`` use the
-#: ``n`` x ``n`` Bayer matrix (``n=4``: the SPEC's :data:`TEMPLATE_4`).
+#: ``n`` x ``n`` Bayer matrix (``n=4``: the conventions' :data:`TEMPLATE_4`).
 DITHER_METHODS: dict[str, Callable[..., TensorXf | TensorXu8]] = {
     "threshold": _threshold_method,
     "error_diffusion": error_diffusion,
@@ -136,7 +138,7 @@ def dither(image: Any, method: str = "floyd_steinberg", **options: Any) -> Tenso
 
 
 def dither_error(original: Any, result: Any) -> DitherError:
-    """The SPEC's dither error: total (and average) intensity of ``result`` minus ``original``'s.
+    """The conventions' dither error: total (and average) intensity of ``result`` minus ``original``'s.
 
     Sums in float64 over every value (all channels). NaN anywhere gives NaN.
 

@@ -1,5 +1,5 @@
 """Tone operations: gamma, contrast stretching, histogram equalisation, quantisation,
-look-up tables and HDR tone mapping (SPEC "Imaging definitions").
+look-up tables and HDR tone mapping (:ref:`conventions-tone`).
 
 Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
 (H, W, C) and returns a ``drjit.llvm.TensorXf`` (``np.asarray`` gives numpy).

@@ -27,7 +27,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
     gamma : float
         > 0. gamma < 1 darkens (encoding), gamma > 1 lightens (decoding), 1 is the identity.
     a : float
-        > 0, the normalising constant of the SPEC formula (1: ``max_value`` maps to itself).
+        > 0, the normalising constant of the formula of :ref:`conventions-tone` (1: ``max_value`` maps to itself).
     max_value : float
         > 0, the intensity of white (255).
 

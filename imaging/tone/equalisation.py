@@ -53,7 +53,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
     Degenerate breakpoints never divide by zero: r1 = 0 drops the first segment,
     r2 = max drops the last; r1 = r2 = r drops the middle one, making a step:
     values below r follow the first segment, values at or above r the last
-    (so r1 = r2 = r, s1 = 0, s2 = max is the SPEC threshold at r). Through
+    (so r1 = r2 = r, s1 = 0, s2 = max is the conventional threshold at r). Through
     (r1, r1) and (r2, r2) the stretch is the identity. NaN -> 0, +inf -> white
     with a :class:`NonFiniteWarning`.
 
@@ -272,7 +272,7 @@ def _bins(image: Any, levels: int, max_value: float):
 
 @eager_if_shared
 def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.0) -> TensorXf | TensorXu8:
-    """Histogram equalisation (SPEC): F(i) = max(0, round(L t(i) / (h w)) - 1).
+    """Histogram equalisation (:ref:`conventions-equalisation`): F(i) = max(0, round(L t(i) / (h w)) - 1).
 
     t(i) is the cumulative histogram of grey level i, L = ``levels``. Colour
     images are equalised on the V (brightness) channel of HSV, keeping H and S.
@@ -303,7 +303,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     -----
     A constant image (all pixels at level i) maps to L - 1 (white): t(i) = h w.
     A one-pixel image therefore becomes white. All-black becomes white too
-    (the SPEC formula; OpenCV leaves such images unchanged). An image using
+    (the formula of :ref:`conventions-equalisation`; OpenCV leaves such images unchanged). An image using
     every level equally is unchanged (its histogram is already flat). NaN -> 0,
     +inf -> white with a :class:`NonFiniteWarning`.
 
@@ -311,7 +311,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     own share of the pixels, where ``cv2.equalizeHist`` stretches the cumulative histogram so
     that it maps to 0 ((cdf - cdf_min) / (h w - cdf_min)). Measured on a 100x100 image with
     10 % black pixels (the rest uniform in 1..255): black becomes 25 here and 0 in OpenCV, and
-    no level differs by more than those 25. Both are histogram equalisation; this is the SPEC's.
+    no level differs by more than those 25. Both are histogram equalisation; this is the conventions' one.
 
     Examples
     --------
