@@ -194,6 +194,61 @@ def _dicom_series_label(datasets: list) -> str:
     return text + (f", {description!r}" if description else "")
 
 
+def _image_files(folder: Path, pydicom: Any, invalid: type) -> list[tuple[Path, Any]]:
+    """``(file, dataset)`` of every DICOM image file of ``folder`` (sorted by name); files that are not
+    DICOM, and DICOM files without images, are left out; a damaged or truncated one is an error."""
+    datasets = []
+    problems = []
+    for file in sorted(p for p in folder.iterdir() if p.is_file()):
+        try:
+            ds = pydicom.dcmread(str(file))
+        except invalid as error:  # not DICOM (no 'DICM' marker): not part of any series...
+            if file.suffix.lower() == ".dcm" and file.stat().st_size < _DICOM_MARKER_END:
+                # ...unless its name says it is and it ends before the marker could: cut short
+                raise ValueError(f"volume: {folder}: {file.name} ends at byte {file.stat().st_size}, before the DICOM "
+                                 f"marker (byte {_DICOM_MARKER_END}); a truncated file, or remove it from the "
+                                 "folder") from None
+            problems.append(f"{file.name}: {one_line(error)}")
+            continue
+        except Exception as error:  # noqa: BLE001 - a DICOM file cut short or damaged: never drop a slice
+            raise ValueError(f"volume: {folder}: unreadable DICOM file {file.name} "
+                             f"({one_line(error) or type(error).__name__})") from None
+        if "PixelData" in ds:
+            datasets.append((file, ds))
+        elif _image_storage(ds):  # pydicom reads a file cut short without a word, up to where it ends
+            raise ValueError(f"volume: {folder}: {file.name} is a {_image_storage(ds)} file without pixel data; "
+                             "a damaged or truncated file")
+    if not datasets:
+        detail = f" ({problems[0]})" if problems else ""
+        raise ValueError(f"volume: {folder}: no DICOM slices with pixel data{detail}")
+    return datasets
+
+
+def _choose_series(folder: Path, datasets: list[tuple[Path, Any]], series: str | int | None) -> list:
+    """The files of one series (SeriesInstanceUID): the one asked for (UID, or index in the sorted
+    list), or the only one; several without ``series`` is an error listing them."""
+    groups: dict[str, list] = {}
+    for file, ds in datasets:
+        groups.setdefault(str(ds.get("SeriesInstanceUID", "") or ""), []).append((file, ds))
+    uids = sorted(groups)
+    if series is not None:
+        key = str(series).strip()
+        if key in groups:
+            chosen = key
+        elif key.isdigit() and int(key) < len(uids):
+            chosen = uids[int(key)]
+        else:
+            listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
+            raise ValueError(f"series: {series!r} is not a series of {folder}; it holds {listing}")
+    elif len(uids) > 1:
+        listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
+        raise ValueError(f"volume: {folder} holds {len(uids)} DICOM series; choose one with series= "
+                         f"(--series UID or index): {listing}")
+    else:
+        chosen = uids[0]
+    return groups[chosen]
+
+
 def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
                       series: str | int | None = None) -> Volume:
     """Read a DICOM series (a folder of slices, or a multi-frame file) as Hounsfield units, placed in LPS.
@@ -235,50 +290,7 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     except ImportError:
         raise ValueError("volume: reading DICOM needs pydicom (pip install 'pointillist[medical]')") from None
     folder = Path(folder)
-    datasets = []
-    problems = []
-    for file in sorted(p for p in folder.iterdir() if p.is_file()):
-        try:
-            ds = pydicom.dcmread(str(file))
-        except InvalidDicomError as error:  # not DICOM (no 'DICM' marker): not part of any series...
-            if file.suffix.lower() == ".dcm" and file.stat().st_size < _DICOM_MARKER_END:
-                # ...unless its name says it is and it ends before the marker could: cut short
-                raise ValueError(f"volume: {folder}: {file.name} ends at byte {file.stat().st_size}, before the DICOM "
-                                 f"marker (byte {_DICOM_MARKER_END}); a truncated file, or remove it from the "
-                                 "folder") from None
-            problems.append(f"{file.name}: {one_line(error)}")
-            continue
-        except Exception as error:  # noqa: BLE001 - a DICOM file cut short or damaged: never drop a slice
-            raise ValueError(f"volume: {folder}: unreadable DICOM file {file.name} "
-                             f"({one_line(error) or type(error).__name__})") from None
-        if "PixelData" in ds:
-            datasets.append((file, ds))
-        elif _image_storage(ds):  # pydicom reads a file cut short without a word, up to where it ends
-            raise ValueError(f"volume: {folder}: {file.name} is a {_image_storage(ds)} file without pixel data; "
-                             "a damaged or truncated file")
-    if not datasets:
-        detail = f" ({problems[0]})" if problems else ""
-        raise ValueError(f"volume: {folder}: no DICOM slices with pixel data{detail}")
-    groups: dict[str, list] = {}
-    for file, ds in datasets:
-        groups.setdefault(str(ds.get("SeriesInstanceUID", "") or ""), []).append((file, ds))
-    uids = sorted(groups)
-    if series is not None:
-        key = str(series).strip()
-        if key in groups:
-            chosen = key
-        elif key.isdigit() and int(key) < len(uids):
-            chosen = uids[int(key)]
-        else:
-            listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
-            raise ValueError(f"series: {series!r} is not a series of {folder}; it holds {listing}")
-    elif len(uids) > 1:
-        listing = "; ".join(f"{n}: {uid} ({_dicom_series_label(groups[uid])})" for n, uid in enumerate(uids))
-        raise ValueError(f"volume: {folder} holds {len(uids)} DICOM series; choose one with series= "
-                         f"(--series UID or index): {listing}")
-    else:
-        chosen = uids[0]
-    datasets = groups[chosen]
+    datasets = _choose_series(folder, _image_files(folder, pydicom, InvalidDicomError), series)
     first = datasets[0][1]
     try:
         frames = [f for file, ds in datasets for f in _dicom_frames(file, ds)]
