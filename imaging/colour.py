@@ -309,7 +309,7 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
     TypeError
         If a parameter is not a number.
     ValueError
-        If a factor is negative or a parameter is not finite in float32 (|x| <= 3.4e38).
+        If a factor is negative or a parameter is not finite in float32 (``|x| <= 3.4e38``).
 
     Examples
     --------

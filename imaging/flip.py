@@ -60,8 +60,8 @@ argument            domain                             what happens
                     after sRGB decoding, as            there); a 1x1 image is fine (every tap
                     flip-evaluator does)               reads the one pixel)
 exposures (HDR)     computed from the reference, or    start > stop is refused (flip-evaluator
-                    ``start_exposure <= stop_exposure``  exits the process there): a reference
-                                                       whose largest luminance is below float32's
+                    given (``start_exposure`` <=       exits the process there): a reference
+                    ``stop_exposure``)                 whose largest luminance is below float32's
                                                        epsilon has no range of its own
 ``ppd``             finite, > 0                        pixels per degree; the radii follow it
 ==================  =================================  =========================================

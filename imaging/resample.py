@@ -32,7 +32,7 @@ INTER_CUBIC; it aliases).
   range next to edges; ``clamp=True`` limits each 1-D pass to the range of its two
   central taps, so the result stays within the 2x2 pixels around the point.
   ``a`` is taken in -3..0 (:data:`KEYS_A_RANGE`), where W falls from its peak W(0) = 1 without
-  going negative inside |t| < 1: outside, the kernel is no longer a smoothing interpolator, and
+  going negative inside ``|t| < 1``: outside, the kernel is no longer a smoothing interpolator, and
   a huge ``a`` makes its weights cancel to rounding noise (``a = 1e30``) or overflow float32 to NaN.
 """
 

@@ -75,7 +75,7 @@ def volume_readers() -> tuple[VolumeReader, ...]:
 
 
 def volume_formats() -> str:
-    """What :func:`load_volume` accepts, in words: ``".vol, .npy, ... or a DICOM folder"``."""
+    """What :func:`load_volume` accepts, in words (every suffix, then "or a DICOM folder")."""
     readers = volume_readers()
     suffixes = ", ".join(suffix for reader in readers for suffix in reader.suffixes)
     folders = [f"a {reader.label} folder" for reader in readers if reader.folder]
