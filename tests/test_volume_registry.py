@@ -80,3 +80,16 @@ def test_a_registered_reader_is_picked_up_everywhere(tmp_path, monkeypatch):
         load_volume(tmp_path / "x.xyz")
     assert "``.txt``" in registry.reader_table()
     assert ".txt" in _mip_help()
+
+
+def test_building_the_command_line_imports_no_imaging_module():
+    """``mip -h`` lists the registry's formats, but only when the help is shown: building the parser
+    (every command does) must not load Dr.Jit, or a missing libLLVM would escape the one-line exit 2."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pointillist.cli as cli; cli.build_parser(); "
+            "print(sorted(m for m in sys.modules if m.startswith(('pointillist.imaging', 'drjit'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

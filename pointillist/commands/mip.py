@@ -40,7 +40,6 @@ import argparse
 import sys
 
 from pointillist.commands._types import finite_float, non_negative_int, positive_float, positive_int
-from pointillist.imaging.volumes import volume_formats
 from pointillist.mip import NAMED_VIEWS
 
 NAME = "mip"
@@ -73,9 +72,27 @@ def _spacing(text: str) -> tuple[float, float, float]:
     return values
 
 
+class _VolumeArgument(argparse.Action):
+    """The ``volume`` argument, whose help lists the formats of the volume-reader registry when the
+    help is shown (building the parser imports no imaging module: Dr.Jit loads only for a command)."""
+
+    @property
+    def help(self) -> str:
+        from pointillist.imaging.volumes import volume_formats
+
+        return f"volume file or folder: {volume_formats()}"
+
+    @help.setter
+    def help(self, value: str) -> None:
+        pass  # the help is the registry's
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist mip`` to ``parser``."""
-    parser.add_argument("volume", help=f"volume file or folder: {volume_formats()}")
+    parser.add_argument("volume", action=_VolumeArgument, help="volume file or folder")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
     views.add_argument("--view", choices=sorted(NAMED_VIEWS), help="named view (default: axial)")
