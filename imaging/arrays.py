@@ -17,6 +17,8 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, TensorXf, TensorXu8, UInt8
 
+from pointillist import checks
+
 __all__ = ["as_tensor", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared", "check_shape", "is_uint8",
            "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning", "replace_non_finite",
            "warn_non_finite"]
@@ -127,6 +129,9 @@ def check_shape(shape: tuple[int, ...], name: str = "image", channels: tuple[int
     ...
     ValueError: image: expected an image of shape (H, W) or (H, W, C), got shape (4,)
     """
+    shape = checks.integers(shape, "shape", low=0)
+    if channels is not None:
+        channels = checks.integers(channels, "channels", low=1)
     if len(shape) not in (2, 3):
         raise ValueError(f"{name}: expected an image of shape (H, W) or (H, W, C), got shape {tuple(shape)}")
     if not allow_empty and any(s == 0 for s in shape):

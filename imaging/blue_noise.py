@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["void_and_cluster"]
 
 
@@ -28,12 +30,10 @@ def void_and_cluster(n: int = 64, *, sigma: float = 1.5, seed: int = 0, density:
     >>> sorted(void_and_cluster(4, seed=1).ravel().tolist()) == list(range(1, 17))
     True
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= 256:
-        raise ValueError(f"n: expected an integer from 2 to 256, got {n!r}")
-    if not (isinstance(sigma, (int, float)) and sigma > 0):
-        raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
-    if not (isinstance(density, float) and 0 < density < 0.5):
-        raise ValueError(f"density: expected a float in (0, 0.5), got {density!r}")
+    n = checks.integer(n, "n", low=2, high=256)
+    sigma = checks.real(sigma, "sigma", low=0.0, low_open=True)
+    density = checks.real(density, "density", low=0.0, high=0.5, low_open=True, high_open=True)
+    seed = checks.seed(seed)
     d = np.minimum(np.arange(n), n - np.arange(n)).astype(np.float64)
     kernel = np.exp(-(d[:, None] ** 2 + d[None, :] ** 2) / (2.0 * sigma * sigma))
 

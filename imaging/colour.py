@@ -1,4 +1,4 @@
-"""Colour: RGB <-> HSV, Rec. 709 luminance and the sRGB transfer curves (SPEC "Colour").
+"""Colour: RGB <-> HSV, Rec. 709 luminance and the sRGB transfer curves (:ref:`conventions-colour`).
 
 Every function takes a numpy array or a Dr.Jit tensor and returns a
 ``drjit.llvm.TensorXf``; the work is one fused Dr.Jit kernel per call (no

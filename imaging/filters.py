@@ -1,4 +1,4 @@
-"""Spatial filters: cross-correlation, edges, median and thresholding (SPEC "Imaging definitions").
+"""Spatial filters: cross-correlation, edges, median and thresholding (:ref:`conventions-filters`).
 
 Every window operation here (:func:`correlate`, :func:`sobel`, :func:`prewitt`,
 :func:`laplacian`, :func:`zero_crossings`, :func:`median`) runs as one Dr.Jit
@@ -35,20 +35,20 @@ __all__ = [
     "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_NETWORK_MAX_SIZE", "MEDIAN_MAX_LOADS",
 ]
 
-# --- Kernel constants (SPEC "Imaging definitions", cross-correlation) -------------------------
-#: Sobel x (SPEC): responds to intensity increasing to the right; = OpenCV ``Sobel(dx=1)``.
+# --- Kernel constants (cross-correlation; conventions: filters) -----------------------------
+#: Sobel x (:ref:`conventions-filters`): responds to intensity increasing to the right; = OpenCV ``Sobel(dx=1)``.
 SOBEL_X = np.array([[-1, 0, 1], [-2, 0, 2], [-1, 0, 1]], dtype=np.float32)
-#: Sobel y (SPEC): responds to intensity increasing *upwards* (= -OpenCV ``Sobel(dy=1)``).
+#: Sobel y (:ref:`conventions-filters`): responds to intensity increasing *upwards* (= -OpenCV ``Sobel(dy=1)``).
 SOBEL_Y = np.array([[1, 2, 1], [0, 0, 0], [-1, -2, -1]], dtype=np.float32)
-#: Prewitt x (SPEC, ``[[1, 0, -1]] * 3`` rows): note the sign is opposite to SOBEL_X.
+#: Prewitt x (:ref:`conventions-filters`, ``[[1, 0, -1]] * 3`` rows): note the sign is opposite to SOBEL_X.
 PREWITT_X = np.array([[1, 0, -1], [1, 0, -1], [1, 0, -1]], dtype=np.float32)
-#: Prewitt y (SPEC).
+#: Prewitt y (:ref:`conventions-filters`).
 PREWITT_Y = np.array([[1, 1, 1], [0, 0, 0], [-1, -1, -1]], dtype=np.float32)
-#: The course's 3x3 Gaussian (SPEC), unnormalised (sum 25).
+#: The course's 3x3 Gaussian (:ref:`conventions-filters`), unnormalised (sum 25).
 GAUSSIAN_3 = np.array([[1, 3, 1], [3, 9, 3], [1, 3, 1]], dtype=np.float32)
-#: Low pass (SPEC): all ones, unnormalised (sum 9).
+#: Low pass (:ref:`conventions-filters`): all ones, unnormalised (sum 9).
 LOW_PASS = np.ones((3, 3), dtype=np.float32)
-#: High pass (SPEC): 8 at the centre, -1 around (sum 0).
+#: High pass (:ref:`conventions-filters`): 8 at the centre, -1 around (sum 0).
 HIGH_PASS = np.array([[-1, -1, -1], [-1, 8, -1], [-1, -1, -1]], dtype=np.float32)
 #: 4-neighbour Laplacian, the second-derivative kernel of ``cv2.Laplacian(ksize=1)``.
 LAPLACIAN = np.array([[0, 1, 0], [1, -4, 1], [0, 1, 0]], dtype=np.float32)
@@ -80,8 +80,7 @@ def _check_kernel(kernel: Any) -> np.ndarray:
 
 
 def _check_size(size: Any) -> int:
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)):
-        raise TypeError(f"size: expected an odd positive int, got {type(size).__name__}")
+    checks.integer(size, "size")
     if size <= 0 or size % 2 == 0:
         raise ValueError(f"size: expected an odd positive int, got {size}")
     return int(size)
@@ -120,7 +119,7 @@ def _weighted_sum(kernel: np.ndarray) -> tuple[list[tuple[int, int]], Callable[[
 
 
 def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool = False) -> TensorXf:
-    """Cross-correlate ``image`` with an odd-sized ``kernel`` (SPEC "Cross-correlation").
+    """Cross-correlate ``image`` with an odd-sized ``kernel`` (:ref:`conventions-filters`).
 
     ``out[y, x] = sum_{i, j} kernel[i, j] * image[y + i - ry, x + j - rx]`` (no kernel flip:
     correlation, like ``cv2.filter2D`` and ``scipy.ndimage.correlate``), for every pixel
@@ -178,8 +177,7 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
     """
     kernel = _check_kernel(kernel)
     border = check_border(border)
-    if not isinstance(normalize, (bool, np.bool_)):
-        raise TypeError(f"normalize: expected a bool, got {type(normalize).__name__}")
+    checks.boolean(normalize, "normalize")
     tensor = as_tensor(image)
     ry, rx = kernel.shape[0] // 2, kernel.shape[1] // 2
     offsets, combine = _weighted_sum(kernel)
@@ -198,15 +196,15 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
 
 @eager_if_shared
 def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] = 0) -> TensorXf:
-    """Min-max normalise to 0..255 (SPEC): ``(|I| - min) * 255 / (max - min)``, min and max over the
-    computed pixels.
+    """Min-max normalise to 0..255: ``(|I| - min) * 255 / (max - min)``, min and max over the
+    computed pixels (:ref:`conventions-filters`).
 
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Any float values; min and max are taken over all channels together.
     absolute : bool
-        Make negative values positive first (absolute value), as the SPEC asks for
+        Make negative values positive first (absolute value), as the conventions ask for
         correlation results (default True). With False the signed values are stretched.
     ring : int or (int, int)
         Width ``r`` or ``(ry, rx)`` of a border ring that was not computed: the ring a
@@ -242,8 +240,7 @@ def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] 
     >>> np.asarray(normalize(correlate(img, GAUSSIAN_3), ring=1))[1:4, 1:4].tolist()
     [[0.0, 63.75, 0.0], [63.75, 255.0, 63.75], [0.0, 63.75, 0.0]]
     """
-    if not isinstance(absolute, (bool, np.bool_)):
-        raise TypeError(f"absolute: expected a bool, got {type(absolute).__name__}")
+    checks.boolean(absolute, "absolute")
     ry, rx = _check_ring(ring)
     tensor = as_tensor(image)
     source = tensor.array
@@ -266,16 +263,14 @@ def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] 
 
 def _check_ring(ring: Any) -> tuple[int, int]:
     values = ring if isinstance(ring, (tuple, list)) else (ring, ring)
-    if len(values) != 2 or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))
-                               or v < 0 for v in values):
+    if len(values) != 2:
         raise ValueError(f"ring: expected a width >= 0 or (rows, columns), got {ring!r}")
-    return int(values[0]), int(values[1])
+    return checks.integer(values[0], "ring", low=0), checks.integer(values[1], "ring", low=0)
 
 
 def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, components: bool):
     border = check_border(border)
-    if not isinstance(components, (bool, np.bool_)):
-        raise TypeError(f"components: expected a bool, got {type(components).__name__}")
+    checks.boolean(components, "components")
     tensor = as_tensor(image)
     offsets_x, combine_x = _weighted_sum(kx)
     offsets_y, combine_y = _weighted_sum(ky)
@@ -292,7 +287,7 @@ def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, component
 
 
 def sobel(image: Any, *, border: str = "zero", components: bool = False):
-    """Sobel gradient magnitude ``sqrt(gx^2 + gy^2)`` with the SPEC's SOBEL_X and SOBEL_Y.
+    """Sobel gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' SOBEL_X and SOBEL_Y.
 
     Parameters
     ----------
@@ -324,7 +319,7 @@ def sobel(image: Any, *, border: str = "zero", components: bool = False):
 
 
 def prewitt(image: Any, *, border: str = "zero", components: bool = False):
-    """Prewitt gradient magnitude ``sqrt(gx^2 + gy^2)`` with the SPEC's PREWITT_X and PREWITT_Y.
+    """Prewitt gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' PREWITT_X and PREWITT_Y.
 
     Same parameters, returns and edge cases as :func:`sobel`. Note PREWITT_X is
     ``[[1, 0, -1]] * 3``, so ``gx`` is positive where intensity grows to the *left*.
@@ -357,7 +352,9 @@ def laplacian(image: Any, *, border: str = "zero") -> TensorXf:
 
 
 def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.0) -> TensorXf:
-    """Zero crossings of a second derivative: a pixel above zero with a neighbour below zero (SPEC).
+    """Zero crossings of a second derivative: a pixel above zero with a neighbour below zero.
+
+    As :ref:`conventions-filters` defines it.
 
     Parameters
     ----------
@@ -414,7 +411,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Intensities (0..255 by convention; any real values are accepted).
     level : float
-        The threshold (SPEC: 128 for dithering). A value equal to ``level`` becomes ``max_value``.
+        The threshold (the conventions: 128 for dithering). A value equal to ``level`` becomes ``max_value``.
     max_value : float
         The value of "on" pixels (default 255).
 
@@ -524,7 +521,9 @@ MEDIAN_MAX_LOADS = 2**34
 
 
 def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
-    """Median filter: the ``size`` x ``size`` window sorted, the middle value replaces the centre (SPEC).
+    """Median filter: the ``size`` x ``size`` window sorted, the middle value replaces the centre.
+
+    As :ref:`conventions-filters` defines it.
 
     The window's values are held in registers and pass through a sorting network
     (Devillard's 19-exchange network for 3x3 and 99-exchange network for 5x5, Batcher's

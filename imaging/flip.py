@@ -60,8 +60,8 @@ argument            domain                             what happens
                     after sRGB decoding, as            there); a 1x1 image is fine (every tap
                     flip-evaluator does)               reads the one pixel)
 exposures (HDR)     computed from the reference, or    start > stop is refused (flip-evaluator
-                    given with start <= stop           exits the process there): a reference
-                                                       whose largest luminance is below float32's
+                    given (``start_exposure`` <=       exits the process there): a reference
+                    ``stop_exposure``)                 whose largest luminance is below float32's
                                                        epsilon has no range of its own
 ``ppd``             finite, > 0                        pixels per degree; the radii follow it
 ==================  =================================  =========================================
@@ -79,6 +79,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, UInt32
 
+from pointillist import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, to_numpy
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_decode
 from pointillist.imaging.neighbourhood import select_max, select_min
@@ -118,10 +119,6 @@ _D65 = (0.950428545, 1.0, 1.088900371)
 _INV_D65 = (1.052156925, 1.0, 0.918357670)
 
 
-def _is_real(value: Any) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-
-
 def pixels_per_degree(distance: float = 0.7, resolution_x: float = 3840.0, monitor_width: float = 0.7) -> float:
     """Pixels per degree of visual angle for a monitor ``monitor_width`` metres wide showing
     ``resolution_x`` pixels seen from ``distance`` metres: ``distance resolution_x / width * pi / 180``
@@ -133,8 +130,7 @@ def pixels_per_degree(distance: float = 0.7, resolution_x: float = 3840.0, monit
     67.0206
     """
     for name, value in (("distance", distance), ("resolution_x", resolution_x), ("monitor_width", monitor_width)):
-        if not _is_real(value) or not math.isfinite(value) or value <= 0:
-            raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+        checks.real(value, name, low=0.0, low_open=True)
     pi = _f32(3.14159265358979)
     return float(_f32(distance) * (_f32(resolution_x) / _f32(monitor_width)) * (pi / _f32(180.0)))
 
@@ -181,7 +177,7 @@ def tonemapper_x_max(tonemapper: str = "aces", t: float = 0.85) -> float:
     (2.1189, 5.6667)
     """
     c = [_f32(v) for v in TONEMAPPERS[_check_tonemapper(tonemapper)]]
-    t = _f32(t)
+    t = _f32(checks.real(t, "t", low=0.0, high=1.0, low_open=True, high_open=True))
     a, b, c0 = c[0] - t * c[3], c[1] - t * c[4], c[2] - t * c[5]
     if a == 0:
         return float(-c0 / b)
@@ -608,18 +604,16 @@ def flip(image: Any, reference: Any, *, dynamic_range: str = "hdr", ppd: float =
     if not isinstance(dynamic_range, str) or dynamic_range.lower() not in ("hdr", "ldr"):
         raise ValueError(f"dynamic_range: expected 'hdr' or 'ldr', got {dynamic_range!r}")
     hdr = dynamic_range.lower() == "hdr"
-    if not _is_real(ppd) or not math.isfinite(ppd) or ppd <= 0:
-        raise ValueError(f"ppd: expected a finite number > 0, got {ppd!r}")
+    checks.real(ppd, "ppd", low=0.0, low_open=True)
     tonemapper = _check_tonemapper(tonemapper)
-    if srgb is not None and not isinstance(srgb, (bool, np.bool_)):
-        raise TypeError(f"srgb: expected a bool or None, got {type(srgb).__name__}")
+    if srgb is not None:
+        checks.boolean(srgb, "srgb")
     srgb = (not hdr) if srgb is None else bool(srgb)
     for name, value in (("start_exposure", start_exposure), ("stop_exposure", stop_exposure)):
-        if value is not None and (not _is_real(value) or not math.isfinite(value)):
-            raise ValueError(f"{name}: expected a finite number of stops, got {value!r}")
-    if num_exposures is not None and (isinstance(num_exposures, (bool, np.bool_))
-                                      or not isinstance(num_exposures, (int, np.integer)) or num_exposures < 1):
-        raise ValueError(f"num_exposures: expected an int >= 1, got {num_exposures!r}")
+        if value is not None:
+            checks.real(value, name)
+    if num_exposures is not None:
+        checks.integer(num_exposures, "num_exposures", low=1)
     test = _rgb_array(image, "image")
     ref = _rgb_array(reference, "reference")
     if test.shape != ref.shape:

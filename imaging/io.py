@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.errors import one_line
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
@@ -483,8 +484,7 @@ def to_8bit(image: Any, *, srgb: bool = True, max_value: float = 1.0) -> np.ndar
 
     NaN becomes 0; +inf becomes 255, -inf 0.
     """
-    if not np.isfinite(max_value) or max_value <= 0:
-        raise ValueError(f"max_value: expected a positive finite number, got {max_value}")
+    checks.real(max_value, "max_value", low=0.0, low_open=True, float32=False)
     pixels = to_numpy(as_tensor(image, "image", channels=(1, 3, 4))).astype(np.float64)
     pixels = np.nan_to_num(pixels / max_value, nan=0.0, posinf=1.0, neginf=0.0)
     pixels = np.clip(pixels, 0.0, 1.0)

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["LPS_FROM_RAS", "ORTHOGONALITY_TOLERANCE", "check_affine", "snap_directions", "inverse_directions",
            "orientation_letters", "axis_codes", "view_labels", "draw_labels"]
 
@@ -75,6 +77,7 @@ def snap_directions(directions: Any, tolerance: float = 1e-6) -> np.ndarray:
     axis-aligned acquisition into a slightly oblique one: its views stay axis-aligned in
     voxel space and take the integrator's column fast path.
     """
+    checks.real(tolerance, "tolerance", low=0.0, float32=False)
     d = np.array(directions, dtype=np.float64)
     d[np.abs(d) < tolerance] = 0.0
     d[np.abs(np.abs(d) - 1.0) < tolerance] = np.sign(d[np.abs(np.abs(d) - 1.0) < tolerance])
@@ -109,6 +112,8 @@ def orientation_letters(vector: Any, *, threshold: float = 0.25, most: int = 3) 
     >>> orientation_letters((1, 0, 0)), orientation_letters((0, -0.8, 0.6)), orientation_letters((0, 0, -1))
     ('L', 'AS', 'I')
     """
+    checks.real(threshold, "threshold", low=0.0, float32=False)
+    checks.integer(most, "most", low=0)
     v = np.asarray(vector, dtype=np.float64)
     norm = float(np.linalg.norm(v))
     if v.shape != (3,) or not norm > 0:

@@ -1,4 +1,4 @@
-"""Resampling: nearest, bilinear and Keys bicubic interpolation (SPEC "Interpolation").
+"""Resampling: nearest, bilinear and Keys bicubic interpolation (:ref:`conventions-resampling`).
 
 Two uses of the same interpolation:
 
@@ -190,14 +190,7 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
     [[0.0, 1.0, 3.0, 4.0]]
     """
     method, a, clamp = _check_options(method, a, clamp)
-    try:
-        width, height = size
-    except (TypeError, ValueError):
-        raise ValueError(f"size: expected (width, height), got {size!r}") from None
-    for name, value in (("width", width), ("height", height)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
-            raise ValueError(f"size: expected a positive int {name}, got {value!r}")
-    width, height = int(width), int(height)
+    width, height = checks.integers(size, "size", 2, low=1)  # (width, height)
     tensor = as_tensor(image)
     H, W = tensor.shape[0], tensor.shape[1]
     C = tensor.shape[2] if tensor.ndim == 3 else 1

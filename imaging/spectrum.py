@@ -43,6 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["NYQUIST", "LOW_FREQUENCY_CUTOFF", "RadialSpectrum", "power_spectrum", "frequency_radius",
            "radial_power_spectrum", "low_frequency_energy", "log_binned"]
 
@@ -120,7 +122,7 @@ def frequency_radius(shape: tuple[int, int]) -> np.ndarray:
     >>> frequency_radius((1, 4)).tolist()
     [[0.0, 0.25, 0.5, 0.25]]
     """
-    height, width = shape
+    height, width = checks.integers(shape, "shape", 2, low=0)
     return np.hypot(np.fft.fftfreq(height)[:, None], np.fft.fftfreq(width)[None, :])
 
 
@@ -151,9 +153,7 @@ def radial_power_spectrum(image, *, max_frequency: float = NYQUIST) -> RadialSpe
     >>> bool(abs(np.nanmean(spectrum.power[1:]) - 1) < 0.03)
     True
     """
-    if isinstance(max_frequency, bool) or not isinstance(max_frequency, (int, float)) \
-            or not 0 <= max_frequency < math.inf:
-        raise ValueError(f"max_frequency: expected a finite number >= 0 (cycles per pixel), got {max_frequency!r}")
+    checks.real(max_frequency, "max_frequency", low=0.0, float32=False)
     spectrum = power_spectrum(image)
     n = max(spectrum.shape)
     ring = np.rint(frequency_radius(spectrum.shape) * n).astype(np.int64).ravel()
@@ -181,8 +181,7 @@ def log_binned(spectrum: RadialSpectrum, *, per_decade: int = 12) -> RadialSpect
     >>> merged.frequency.round(4).tolist(), merged.power.round(4).tolist(), merged.count.tolist()
     ([0.1, 0.2667], [1.0, 3.3333], [2, 6])
     """
-    if isinstance(per_decade, bool) or not isinstance(per_decade, int) or per_decade < 1:
-        raise ValueError(f"per_decade: expected a positive integer, got {per_decade!r}")
+    checks.integer(per_decade, "per_decade", low=1)
     keep = (spectrum.frequency > 0) & (spectrum.count > 0)
     frequency, count = spectrum.frequency[keep], spectrum.count[keep]
     total = spectrum.power[keep] * count
@@ -226,8 +225,7 @@ def low_frequency_energy(image, *, cutoff: float = LOW_FREQUENCY_CUTOFF) -> floa
     >>> round(low_frequency_energy(slow), 12), round(low_frequency_energy(fast), 12)
     (2.0, 0.0)
     """
-    if isinstance(cutoff, bool) or not isinstance(cutoff, (int, float)) or not 0 <= cutoff < math.inf:
-        raise ValueError(f"cutoff: expected a finite number >= 0 (cycles per pixel), got {cutoff!r}")
+    checks.real(cutoff, "cutoff", low=0.0, float32=False)
     spectrum = power_spectrum(image)
     inside = frequency_radius(spectrum.shape) <= cutoff + 1e-12
     return float(spectrum[inside].sum() / spectrum.size)

@@ -94,6 +94,7 @@ def check_window(level: float, width: float) -> tuple[float, float]:
 
 def colormap_lut(name: str = "grey", size: int = 256) -> np.ndarray | None:
     """RGB look-up table ``(size, 3)`` float32 of a matplotlib colormap; ``None`` for grey."""
+    checks.integer(size, "size", low=2)
     if name in ("grey", "gray"):
         return None
     try:

@@ -19,6 +19,7 @@ Function            Accepts
 ``real_array``      an array of such reals (a kernel, a table)
 ``float32_finite``  a float derived from checked arguments: finite in float32
 ``integer``         int (numpy integers too, not bool), in bounds
+``integers``        a sequence of such ints (a shape, a size), of a given length
 ``boolean``         bool (numpy bool too)
 ``choice``          one of a fixed set of values (of the same type)
 ``uint32``          int in 0..2^32-1 (Mitsuba's and Dr.Jit's 32-bit counters)
@@ -48,13 +49,13 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "boolean", "choice",
-           "uint32", "seed"]
+__all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
+           "choice", "uint32", "seed"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -219,6 +220,27 @@ def integer(value: Any, name: str, *, low: int | None = None, high: int | None =
             (f">= {low}" if low is not None else f"<= {high}")
         raise ValueError(f"{name}: expected an integer {span}, got {number}")
     return number
+
+
+def integers(value: Any, name: str, count: int | None = None, *, low: int | None = None,
+             high: int | None = None) -> tuple[int, ...]:
+    """A sequence of integers (a shape, a size): ``count`` of them when given, each in ``low..high``.
+
+    Examples
+    --------
+    >>> from pointillist.checks import integers
+    >>> integers((480, 640), "size", 2, low=1)
+    (480, 640)
+    >>> integers("64", "size", 2)
+    Traceback (most recent call last):
+    ...
+    TypeError: size: expected a sequence of integers, got str '64'
+    """
+    if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
+        raise TypeError(f"{name}: expected a sequence of integers, got {_got(value)}")
+    if count is not None and len(value) != count:
+        raise ValueError(f"{name}: expected {count} integers, got {len(value)}: {tuple(value)!r}")
+    return tuple(integer(item, name, low=low, high=high) for item in value)
 
 
 def boolean(value: Any, name: str) -> bool:

@@ -105,6 +105,23 @@ def test_integer_types_and_one_sided_bounds():
         integer(10, "n", high=9)
 
 
+def test_integers_type_then_length_then_bounds():
+    assert checks.integers((480, np.int64(640)), "size", 2, low=1) == (480, 640)
+    assert checks.integers(np.array([3, 4, 5]), "shape") == (3, 4, 5)
+    assert checks.integers([], "shape") == ()
+    for bad in ("64", 64, None, {1, 2}, b"ab"):  # not a sequence: TypeError, the argument named
+        with pytest.raises(TypeError, match="^size: expected a sequence of integers, got "):
+            checks.integers(bad, "size", 2)
+    with pytest.raises(TypeError, match="^size: expected an integer, got float 2.5$"):
+        checks.integers((2.5, 3), "size", 2)
+    with pytest.raises(TypeError, match="^size: expected an integer, got bool True$"):
+        checks.integers((True, 3), "size", 2)
+    with pytest.raises(ValueError, match=r"^size: expected 2 integers, got 3: \(1, 2, 3\)$"):
+        checks.integers((1, 2, 3), "size", 2)
+    with pytest.raises(ValueError, match="^size: expected an integer >= 1, got 0$"):
+        checks.integers((0, 3), "size", 2, low=1)
+
+
 def test_boolean():
     assert boolean(True, "b") is True and boolean(np.bool_(False), "b") is False
     for bad in (1, 0, "true", None, 1.0):

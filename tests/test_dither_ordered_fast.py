@@ -320,7 +320,7 @@ def test_float32_single_product_divmod_is_exact_below_2_to_22():
 def test_uint8_pre_tiled_map_equals_the_table_path(monkeypatch):
     """1-bit uint8 ordered dithering compares the bytes with a cached pre-tiled byte map; it equals
     the per-pixel table route (taken above the size limit) and the SPEC rule, for every shape."""
-    import pointillist.imaging.dither as dither_module
+    import pointillist.imaging.dither.templates as dither_module
 
     rng = np.random.default_rng(11)
     for shape in ((37, 45), (16, 64, 3), (5, 7, 1), (64, 70)):

@@ -283,8 +283,16 @@ def test_axial_fold_on_new_slices_and_shapes(mi, rng):
                 assert np.array_equal(np.asarray(got), reduce(vol, axis=0).astype(np.float32).ravel())
 
 
+def _decode_keys(keys: np.ndarray) -> np.ndarray:
+    """An independent numpy decoder of 16-bit keys (the oracle of the Dr.Jit one): a key with the top
+    bit set is a non-negative half with that bit flipped, else a negative one with every bit flipped."""
+    keys = keys.astype(np.uint32)
+    bits = np.where(keys & 0x8000, keys ^ 0x8000, ~keys & 0xFFFF).astype(np.uint16)
+    return bits.view(np.float16).astype(np.float32)
+
+
 def test_half_keys_order_every_finite_float16(mi):
-    from pointillist.plugins.integrators._mip_accel import _decode_keys, _half_key, _key_to_float
+    from pointillist.plugins.integrators._mip_accel import _half_key, _key_to_float
 
     bits = np.arange(1 << 16, dtype=np.uint32).astype(np.uint16)
     values = bits.view(np.float16)

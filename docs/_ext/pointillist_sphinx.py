@@ -346,6 +346,27 @@ def value_summary(value) -> list[str]:
     return [f"A ``{type(value).__name__}``.", ""]
 
 
+def reexported_doc_comment(name: str, value) -> list[str] | None:
+    """The ``#:`` comment of a constant that package ``name`` re-exports from one of its modules
+    (autodoc looks for it in the package's own source only); None when the package defines it
+    itself (or no module of the package holds it with a comment)."""
+    from sphinx.pycode import ModuleAnalyzer
+
+    package, _, attribute = name.rpartition(".")
+    module = sys.modules.get(package)
+    if module is None or not hasattr(module, "__path__"):
+        return None
+    if ("", attribute) in ModuleAnalyzer.for_module(package).find_attr_docs():
+        return None
+    for info in pkgutil.walk_packages(module.__path__, prefix=f"{package}."):
+        home = importlib.import_module(info.name)
+        if vars(home).get(attribute) is value:
+            comment = ModuleAnalyzer.for_module(info.name).find_attr_docs().get(("", attribute))
+            if comment:
+                return [*comment, f"(Defined in :mod:`{info.name}`.)", ""]
+    return None
+
+
 def process_docstring(app, what, name, obj, options, lines):
     """Plugin classes: a pointer to their plugin section; re-exports: a pointer to their home;
     constants without a doc comment: their value (autodoc would show their type's docstring)."""
@@ -354,9 +375,14 @@ def process_docstring(app, what, name, obj, options, lines):
         plugin = sys.modules[obj.__module__].PLUGIN_NAME
         lines[:] = [f"{title}. A Mitsuba plugin; its parameters and behaviour: :ref:`plugin-{plugin}`.", ""]
         return
-    if what in ("data", "attribute") and _inherited_docstring(obj, lines):
-        lines[:] = value_summary(obj)
-        return
+    if what in ("data", "attribute"):
+        comment = reexported_doc_comment(name, obj)
+        if comment is not None:
+            lines[:] = comment
+            return
+        if _inherited_docstring(obj, lines):
+            lines[:] = value_summary(obj)
+            return
     module_name = name.rpartition(".")[0]
     home = defined_in(obj, module_name)
     if home is not None and home != name:

@@ -230,12 +230,6 @@ def _key_to_float(key):
     return _half_bits_to_float(_key_bits(key))
 
 
-def _decode_keys(keys: np.ndarray) -> np.ndarray:
-    keys = keys.astype(np.uint32)
-    bits = np.where(keys & 0x8000, keys ^ 0x8000, ~keys & 0xFFFF).astype(np.uint16)
-    return bits.view(np.float16).astype(np.float32)
-
-
 def float_ordered(bits: np.ndarray) -> bool:
     """Whether float16 ``bits`` (uint16) can be compared as the float32 words they start (see
     :class:`_WordOrder`): every value is +0 or has an exponent field above 2^-17's, i.e. no -0

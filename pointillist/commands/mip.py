@@ -1,7 +1,7 @@
 """Project a CT/MRI volume: maximum (minimum, average) intensity projection to PNG or EXR.
 
-VOLUME is a Mitsuba .vol, .npy, NRRD (.nrrd/.nhdr), NIfTI (.nii/.nii.gz) file or a folder
-holding DICOM images (values in Hounsfield units; --series picks one of several series).
+VOLUME is a volume file (the formats are listed under `volume` below) or a folder holding
+DICOM images (values in Hounsfield units; --series picks one of several series).
 
 Patient space: every view is anatomical whatever the voxel order. Volumes are placed in
 LPS (x = patient's left, y = posterior, z = superior, as DICOM and ITK) by their
@@ -72,9 +72,27 @@ def _spacing(text: str) -> tuple[float, float, float]:
     return values
 
 
+class _VolumeArgument(argparse.Action):
+    """The ``volume`` argument, whose help lists the formats of the volume-reader registry when the
+    help is shown (building the parser imports no imaging module: Dr.Jit loads only for a command)."""
+
+    @property
+    def help(self) -> str:
+        from pointillist.imaging.volumes import volume_formats
+
+        return f"volume file or folder: {volume_formats()}"
+
+    @help.setter
+    def help(self, value: str) -> None:
+        pass  # the help is the registry's
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist mip`` to ``parser``."""
-    parser.add_argument("volume", help="volume file (.vol, .npy, .nrrd, .nii[.gz]) or DICOM series folder")
+    parser.add_argument("volume", action=_VolumeArgument, help="volume file or folder")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
     views.add_argument("--view", choices=sorted(NAMED_VIEWS), help="named view (default: axial)")

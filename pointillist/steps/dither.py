@@ -3,7 +3,7 @@
 Examples: ``--dither floyd_steinberg``, ``--dither floyd_steinberg:levels=4,serpentine=true``,
 ``--dither jarvis_judice_ninke``, ``--dither ordered:levels=4``, ``--dither bayer:n=8``,
 ``--dither blue_noise``, ``--dither pattern``, ``--dither halftone:n=3``,
-``--dither error_diffusion``, ``--dither threshold:level=100``; ``--report`` prints the SPEC
+``--dither error_diffusion``, ``--dither threshold:level=100``; ``--report`` prints the conventions'
 dither error (total and average intensity of the result minus the original's).
 """
 
@@ -18,7 +18,7 @@ from pointillist.steps import step
 
 
 def _report(before: Any, after: Any) -> dict[str, float]:
-    """The SPEC dither error; for halftone (n times larger) the average is per unit area."""
+    """The dither error of the conventions; for halftone (n times larger) the average is per unit area."""
     before_shape, after_shape = tuple(before.shape), tuple(after.shape)
     if before_shape == after_shape:
         error = dither.dither_error(before, after)

@@ -1,0 +1,162 @@
+"""NRRD ``.nrrd`` / ``.nhdr`` files (pynrrd), placed in LPS."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pointillist.errors import one_line
+from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
+from pointillist.imaging.volumes._registry import VolumeReader, register
+
+__all__ = ["read_nrrd"]
+
+#: NRRD ``space`` values (full names and abbreviations of the NRRD spec) -> signs taking them to LPS.
+_NRRD_SPACES = {
+    "left-posterior-superior": (1, 1, 1), "lps": (1, 1, 1),
+    "right-anterior-superior": (-1, -1, 1), "ras": (-1, -1, 1),
+    "left-anterior-superior": (1, -1, 1), "las": (1, -1, 1),
+}
+
+
+def read_nrrd(path: str | os.PathLike) -> Volume:
+    """Read a 3-D NRRD file with pynrrd, placed in LPS by ``space``, ``space directions``, ``space origin``.
+
+    ``space`` RAS, LAS and LPS (full names or abbreviations) are converted to LPS.
+    ``scanner-xyz`` (ACR-NEMA 2.0 / DICOM scanner coordinates; the NRRD spec does not pin
+    its axes down) and ``3D-right-handed`` / ``3D-left-handed`` are taken as LPS, with a
+    warning. A file with ``spacings`` only (no orientation) keeps its voxel axes as L, P, S
+    with a warning, and so does a file whose ``space directions`` are ``none`` (NRRD's word for an
+    axis without a direction in space) for two or three axes; a single ``none`` axis is completed
+    as the right-handed normal of the other two (its ``spacings`` entry long, else 1), with a
+    warning. The header's claimed data size is checked against the file's before reading. The
+    array is read in C order: ``data[z, y, x]`` with NRRD's first (fastest) axis as x; ``space
+    directions`` row n is axis n's step.
+    """
+    try:
+        import nrrd
+    except ImportError:
+        raise ValueError("volume: reading NRRD needs pynrrd (pip install 'pointillist[medical]')") from None
+    path = Path(path)
+    try:
+        header = nrrd.read_header(str(path))
+        _check_nrrd_size(path, header)
+        data, header = nrrd.read(str(path), index_order="C")
+    except ValueError as error:
+        if str(error).startswith("volume:"):
+            raise
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
+    except Exception as error:  # noqa: BLE001 - pynrrd raises NRRDError, OSError, zlib.error...
+        raise ValueError(f"volume: {path}: not a readable NRRD file ({one_line(error) or type(error).__name__})") \
+            from None
+    if data.ndim != 3:
+        raise ValueError(f"volume: {path}: expected a 3-D NRRD, got {data.ndim} dimensions")
+    meta = {"format": "nrrd"}
+    space = str(header.get("space", "")).strip().lower()
+    origin = _nrrd_vector(header.get("space origin"))
+    directions, assumed = _nrrd_directions(header.get("space directions"), header.get("spacings"))
+    try:
+        if directions is not None:
+            if assumed:
+                _warn(f"volume: {path}: {assumed}")
+            signs = _NRRD_SPACES.get(space)
+            if signs is None:
+                _warn(f"volume: {path}: NRRD space {space or '(none)'!r} has no anatomical axes; taken as LPS")
+                signs = (1, 1, 1)
+            meta["space"] = space
+            affine = np.eye(4)
+            affine[:3, :3] = directions.T * np.asarray(signs, dtype=np.float64)[:, None]
+            affine[:3, 3] = (origin if origin is not None else np.zeros(3)) * signs
+            return Volume(np.ascontiguousarray(data), metadata=meta, affine=affine)
+        spacing = (1.0, 1.0, 1.0)
+        if header.get("spacings") is not None:
+            spacing = tuple(float(s) for s in header["spacings"])
+        assumed = assumed or "NRRD without 'space directions'"
+        _warn(f"volume: {path}: {assumed}; voxel axes x, y, z taken as L, P, S")
+        return Volume(np.ascontiguousarray(data), spacing, tuple(origin) if origin is not None else (0.0, 0.0, 0.0),
+                      meta)
+    except ValueError as error:
+        raise ValueError(f"volume: {path}: {error}") from None
+
+
+#: Bytes per value of each NRRD ``type`` (every spelling the NRRD format allows).
+_NRRD_ITEMSIZE = {
+    **dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsigned char", "uint8", "uint8_t"), 1),
+    **dict.fromkeys(("short", "short int", "signed short", "signed short int", "int16", "int16_t", "ushort",
+                     "unsigned short", "unsigned short int", "uint16", "uint16_t"), 2),
+    **dict.fromkeys(("int", "signed int", "int32", "int32_t", "uint", "unsigned int", "uint32", "uint32_t",
+                     "float"), 4),
+    **dict.fromkeys(("longlong", "long long", "long long int", "signed long long", "signed long long int", "int64",
+                     "int64_t", "ulonglong", "unsigned long long", "unsigned long long int", "uint64", "uint64_t",
+                     "double"), 8),
+}
+
+
+def _check_nrrd_size(path: Path, header: dict) -> None:
+    """The claimed data size against the file's, before pynrrd allocates it (for data in the file
+    itself, raw or compressed; a detached ``data file`` is pynrrd's to check)."""
+    if header.get("data file") or header.get("datafile"):
+        return
+    sizes = [int(n) for n in np.atleast_1d(header.get("sizes", []))]
+    kind = " ".join(str(header.get("type", "")).lower().split())
+    itemsize = _NRRD_ITEMSIZE.get(kind, 1)  # an unknown or block type: pynrrd's own error follows
+    encoding = str(header.get("encoding", "raw")).strip().lower()
+    if encoding in ("txt", "text", "ascii"):
+        itemsize = 2  # a digit and a separator at least
+    if any(n < 1 for n in sizes):
+        raise ValueError(f"volume: {path}: NRRD sizes must be positive, got {sizes}")
+    _check_claimed_size(path, int(np.prod(sizes, dtype=object)) * itemsize,
+                        f"{'x'.join(map(str, sizes))} values of type {kind}",
+                        compressed=encoding in ("gzip", "gz", "bzip2", "bz2"))
+
+
+def _nrrd_vector(value: Any) -> np.ndarray | None:
+    """A finite 3-vector of a NRRD header (``space origin``), or None."""
+    if value is None:
+        return None
+    try:
+        vector = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return vector if vector.shape == (3,) and np.all(np.isfinite(vector)) else None
+
+
+def _nrrd_directions(value: Any, spacings: Any) -> tuple[np.ndarray | None, str | None]:
+    """NRRD ``space directions`` as ``(3x3 array or None, what was assumed or None)``; row n is axis n's step.
+
+    ``none`` marks an axis without a direction in space (NRRD's word for a non-spatial axis). With
+    one such axis of three, it is completed as the right-handed normal of the other two, its length
+    the axis's ``spacings`` entry (else 1); with more, or other unusable values, the orientation is
+    left out (None: the caller takes the voxel axes as L, P, S).
+    """
+    if value is None:
+        return None, None
+    try:
+        rows = [np.asarray(row, dtype=np.float64).reshape(-1) for row in value]
+    except (TypeError, ValueError):
+        rows = []
+    usable = [row.shape == (3,) and bool(np.all(np.isfinite(row))) and bool(np.any(row)) for row in rows]
+    if len(rows) == 3 and all(usable):
+        return np.array(rows), None
+    if len(rows) == 3 and sum(usable) == 2:
+        missing = usable.index(False)
+        normal = np.cross(rows[(missing + 1) % 3], rows[(missing + 2) % 3])  # (x, y, z) right-handed
+        if np.linalg.norm(normal) > 0:
+            try:
+                step = float(np.atleast_1d(np.asarray(spacings, dtype=np.float64))[missing])
+            except (TypeError, ValueError, IndexError):
+                step = float("nan")
+            length = step if np.isfinite(step) and step > 0 else 1.0
+            rows[missing] = normal / np.linalg.norm(normal) * length
+            return np.array(rows), (f"NRRD axis {missing} has no space direction ('none'); taken as the "
+                                    f"right-handed normal of the other two, {length:g} long")
+    given = ", ".join("a direction" if ok else "none" for ok in usable) or "nothing"
+    return None, f"NRRD 'space directions' give {given}"
+
+
+register(VolumeReader(name="NRRD", label="NRRD", suffixes=(".nrrd", ".nhdr"), read=read_nrrd,
+                      spacing_from="``space directions`` or ``spacings``", needs="pynrrd", order=30))
