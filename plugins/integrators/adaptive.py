@@ -208,8 +208,6 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             'nested': {'type': 'direct'}
     """
 
-    PLUGIN_NAME = "adaptive"
-
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         nested = []
@@ -687,5 +685,4 @@ def _spread(quad) -> mi.Float:
     return dr.maximum(dr.maximum(spread.x, spread.y), spread.z)
 
 
-PLUGIN_NAME = AdaptiveIntegrator.PLUGIN_NAME
 PLUGIN_CLASS = AdaptiveIntegrator

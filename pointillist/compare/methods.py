@@ -1,0 +1,205 @@
+"""The methods ``pointillist compare`` can sweep, and how each is put into a scene.
+
+Methods live in :data:`METHODS` (:func:`register_method`): a sampler method swaps
+the ``<sampler>`` of every ``<sensor>`` of the scene XML (so any user scene works,
+whatever its sampler); an integrator method (e.g. adaptive super-sampling, whose
+sweep parameter is a threshold) swaps the ``<integrator>``. Every Mitsuba sampler
+plugin (``stratified``, ``multijitter``, ``orthogonal``, ``ldsampler``,
+``independent``) is a valid method too.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from pointillist.errors import UsageError
+
+__all__ = [
+    "Method", "METHODS", "MITSUBA_SAMPLERS", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS", "register_method",
+    "resolve_methods", "sweep_parameter", "setting_label", "configure_scene", "scene_key", "load_configured_scene",
+]
+
+
+#: Mitsuba's built-in samplers, all valid peers.
+MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+
+# ----------------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class Method:
+    """How the scene is configured for one compared method.
+
+    Attributes
+    ----------
+    name : str
+        The name on the command line (``random``).
+    plugin : str
+        The Mitsuba plugin type put into the scene (``independent``).
+    kind : {"sampler", "integrator"}
+        ``sampler``: every sensor's ``<sampler>`` becomes ``<sampler type=plugin>``
+        with ``sample_count`` = the sweep value; ``integrator``: the scene's
+        ``<integrator>`` becomes ``<integrator type=plugin>`` with the property
+        ``parameter`` = the sweep value.
+    parameter : str
+        The sweep parameter: ``spp`` for samplers (the ``--spp`` list), or the
+        integrator property swept (e.g. ``threshold``).
+    values : tuple of float
+        The default sweep of a non-``spp`` parameter.
+    configure : callable, optional
+        ``configure(root, value)`` edits the parsed scene XML in place instead of
+        the default for ``kind`` (must be a module-level function: tasks are pickled).
+    """
+
+    name: str
+    plugin: str
+    kind: str = "sampler"
+    parameter: str = "spp"
+    values: tuple[float, ...] = ()
+    configure: Callable[[ET.Element, float], None] | None = None
+
+#: Registered methods by name. ``random`` is Mitsuba's ``independent``.
+METHODS: dict[str, Method] = {}
+
+def register_method(method: Method) -> None:
+    """Add ``method`` to :data:`METHODS` (replacing one of the same name)."""
+    if method.kind not in ("sampler", "integrator"):
+        raise ValueError(f"method.kind: expected 'sampler' or 'integrator', got {method.kind!r}")
+    METHODS[method.name] = method
+
+for _name, _plugin in (("grid", "grid"), ("jitter", "jitter"), ("poisson", "poisson"),
+                       ("random", "independent"), ("sobol", "sobol"), ("zsobol", "zsobol")):
+    register_method(Method(_name, _plugin))
+
+for _name in MITSUBA_SAMPLERS:
+    register_method(Method(_name, _name))
+
+def _configure_adaptive(root: ET.Element, value: float) -> None:
+    """Wrap the scene's ``<integrator>`` in ``<integrator type="adaptive">`` with
+    ``threshold`` = ``value`` (an adaptive integrator already there gets the threshold)."""
+    old = root.findall("integrator")
+    if old and old[0].get("type") == "adaptive":
+        adaptive = old[0]
+        for element in adaptive.findall("*[@name='threshold']"):
+            adaptive.remove(element)
+        adaptive.insert(0, _property("float", "threshold", float(value)))
+        return
+    position = list(root).index(old[0]) if old else 0
+    for element in old:
+        root.remove(element)
+    adaptive = ET.Element("integrator", {"type": "adaptive"})
+    adaptive.append(_property("float", "threshold", float(value)))
+    for name, depth in ADAPTIVE_DEPTHS.items():
+        adaptive.append(_property("integer", name, depth))
+    adaptive.append(old[0] if old else ET.Element("integrator", {"type": "path"}))
+    root.insert(position, adaptive)
+
+#: Adaptive super-sampling (plugins/integrators/adaptive.py) sweeps its threshold on
+#: the 0..255 display scale, around the scene's own integrator, starting from the 3 x 3
+#: lattice per pixel (min_depth 1) down to depth 3: the best error-vs-time curve on
+#: scenes/edges.xml (benchmarks/RESULTS.md, "adaptive"); below 16 the error stops falling.
+ADAPTIVE_THRESHOLDS = (128.0, 64.0, 32.0, 16.0)
+
+ADAPTIVE_DEPTHS = {"min_depth": 1, "max_depth": 3}
+
+register_method(Method("adaptive", "adaptive", kind="integrator", parameter="threshold",
+                       values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive))
+
+def resolve_methods(names: str | Iterable[str]) -> list[Method]:
+    """Parse ``grid,jitter,...`` into methods; UsageError names an unknown one."""
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",")]
+    names = [n for n in names if n]
+    if not names:
+        raise UsageError("--samplers: expected a comma-separated list of sampler names")
+    methods, seen = [], set()
+    for name in names:
+        if name not in METHODS:
+            raise UsageError(f"--samplers: unknown sampler {name!r}; expected some of "
+                             f"{', '.join(sorted(METHODS))}")
+        if name not in seen:
+            seen.add(name)
+            methods.append(METHODS[name])
+    return methods
+
+
+def sweep_parameter(method: str) -> str:
+    """What ``method`` sweeps: ``spp`` for samplers (and unknown names), else its integrator property."""
+    spec = METHODS.get(method)
+    return "spp" if spec is None else spec.parameter
+
+
+def setting_label(method: str, value: float) -> str:
+    """The sweep point as people read it: ``16 spp`` for a sampler, ``threshold 64``
+    for an integrator method (its :attr:`Method.parameter`)."""
+    parameter = sweep_parameter(method)
+    return f"{value:g} spp" if parameter == "spp" else f"{parameter} {value:g}"
+
+
+# ------------------------------------------------------------------------ scene set-up
+def _property(tag: str, name: str, value: Any) -> ET.Element:
+    return ET.Element(tag, {"name": name, "value": str(value)})
+
+def configure_scene(xml_text: str, method: Method, value: float) -> str:
+    """The scene XML text with ``method`` swapped in at sweep value ``value``.
+
+    Sampler methods replace the ``<sampler>`` of every top-level ``<sensor>`` (adding
+    one where a sensor has none) by ``<sampler type=plugin>`` holding only
+    ``sample_count``: properties of the old sampler (which may not exist for the new
+    type) are dropped. Integrator methods replace the ``<integrator>``.
+
+    Raises UsageError for XML that does not parse or a scene without a sensor.
+    """
+    try:
+        root = ET.fromstring(xml_text)
+    except ET.ParseError as error:
+        raise UsageError(f"scene: not valid XML ({error})") from None
+    if method.configure is not None:
+        method.configure(root, value)
+    elif method.kind == "sampler":
+        sensors = root.findall("sensor")
+        if not sensors:
+            raise UsageError("scene: no <sensor> element at the top level of the scene file "
+                             "(compare swaps the sensor's <sampler>)")
+        for sensor in sensors:
+            old = sensor.findall("sampler")
+            position = list(sensor).index(old[0]) if old else len(sensor)
+            for element in old:
+                sensor.remove(element)
+            sampler = ET.Element("sampler", {"type": method.plugin})
+            sampler.append(_property("integer", "sample_count", int(value)))
+            sensor.insert(position, sampler)
+    else:
+        old = root.findall("integrator")
+        position = list(root).index(old[0]) if old else 0
+        for element in old:
+            root.remove(element)
+        integrator = ET.Element("integrator", {"type": method.plugin})
+        integrator.append(_property("float", method.parameter, float(value)))
+        root.insert(position, integrator)
+    return ET.tostring(root, encoding="unicode")
+
+def scene_key(scene_path: str | os.PathLike, params: dict[str, str] | None = None) -> str:
+    """A short hash of the scene's inputs (the scene file and every file it reads) and parameters
+    (:func:`pointillist.plan.scene_digest`): the validity of cached renders. Parses the scene
+    (:func:`pointillist.setup` first)."""
+    from pointillist.plan import scene_digest
+
+    return scene_digest(scene_path, params)[:12]
+
+def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: float,
+                          params: dict[str, str] | None = None):
+    """Load ``scene_path`` with ``method`` swapped in; relative paths resolve as in the file.
+
+    Camera-relative where the scene sits far from the origin, as :func:`pointillist.scene.load_scene`
+    loads it. Pointillist must be set up (:func:`pointillist.setup`).
+    """
+    from pointillist.camera_relative import make_camera_relative
+    from pointillist.scene import check_scene_file, instantiate_scene, parse_scene
+
+    path = check_scene_file(scene_path)
+    text = configure_scene(path.read_text(), method, value)
+    what = f" with {method.name}"
+    return instantiate_scene(make_camera_relative(parse_scene(path, params, text=text, what=what)), what=what)
