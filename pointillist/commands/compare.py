@@ -39,15 +39,11 @@ def spp_list(text: str) -> list[int]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist compare`` to ``parser``."""
     from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP  # (cheap: no Mitsuba, no Dask)
+    from pointillist.compare.methods import describe_methods
 
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
-                        help="comma-separated samplers: grid, jitter, random, poisson, sobol (Owen-scrambled "
-                             "Sobol'), zsobol (pbrt-v4's Morton-ordered Sobol': blue-noise error), and Mitsuba's "
-                             "independent, stratified, multijitter, orthogonal, ldsampler; or adaptive "
-                             "(adaptive super-sampling around the scene's integrator, sweeping its threshold "
-                             "instead of --spp) (default "
-                             f"{','.join(DEFAULT_METHODS)})")
+                        help=f"comma-separated samplers: {describe_methods()} (default {','.join(DEFAULT_METHODS)})")
     parser.add_argument("--spp", type=spp_list, default=list(DEFAULT_SPP),
                         help=f"samples per pixel to sweep (default {','.join(map(str, DEFAULT_SPP))})")
     parser.add_argument("--seeds", type=positive_int, default=1,
