@@ -428,10 +428,13 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
     kept = [p for p in stamps if p.name.endswith(".maps.npz")]
     assert len(kept) == 24  # every render's error spectrum, and the seed-0 renders' maps:
     assert sum("flip" in np.load(p).files for p in kept) == 12
+    written = {name: (out / name).stat().st_mtime_ns for name in ("results.csv", "results.md", "report.html")}
     again = cli(*args)
     assert again.returncode == 0 and "(0 new, 24 reused)" in again.stdout
-    # nothing scored again: no record or map rewritten
+    # nothing scored again: no record or map rewritten; nor the report, which shows the same
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "renders").rglob("*.*")}
+    assert written == {name: (out / name).stat().st_mtime_ns for name in written}
+    assert "\nkept " in again.stdout and "\nwrote " not in again.stdout and "kept: unchanged)" in again.stdout
 
 
 def test_cli_compare_reference_file_and_bad_input(cli, tmp_path):

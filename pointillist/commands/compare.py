@@ -82,8 +82,13 @@ def run(args: argparse.Namespace) -> int:
                            log=lambda line: print(line, flush=True))
     records, paths = result.records, result.paths
     print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
-    print("wrote " + ", ".join(str(paths[k]) for k in ("csv", "md", "time_plot", "spp_plot", "spectrum_plot")
-                               if k in paths))
+    report = [k for k in ("csv", "md", "time_plot", "spp_plot", "spectrum_plot") if k in paths]
+    written, kept = [k for k in report if k not in result.kept], [k for k in report if k in result.kept]
+    if written:
+        print("wrote " + ", ".join(str(paths[k]) for k in written))
+    if kept:
+        print("kept " + ", ".join(str(paths[k]) for k in kept) + " (what they show has not changed)")
     if "html" in paths:
-        print(f"report: {paths['html']} ({result.notes[-1]})")  # the page's summary; the other notes were logged
+        kept_page = ", kept: unchanged" if "html" in result.kept else ""
+        print(f"report: {paths['html']} ({result.notes[-1]}{kept_page})")  # the other notes were logged
     return 0

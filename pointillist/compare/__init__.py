@@ -49,7 +49,10 @@ DEFAULT_METHODS = ("grid", "jitter", "random", "poisson")
 
 @dataclass
 class CompareResult:
-    """What :func:`compare_scene` did: the records, the report's files, the reference used."""
+    """What :func:`compare_scene` did: the records, the report's files, the reference used.
+
+    ``kept``: the roles of ``paths`` left as they were, because what they are made from had not
+    changed since they were written (:func:`write_outputs`)."""
 
     records: list[RenderRecord]
     paths: dict[str, Path]
@@ -57,6 +60,7 @@ class CompareResult:
     out_dir: Path
     cluster_renders: int = 0
     notes: list[str] = field(default_factory=list)
+    kept: list[str] = field(default_factory=list)
 
     @property
     def new(self) -> int:
@@ -152,10 +156,10 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
                             progress=progress, log=log, maps=maps, spectra=spectra, key=key)
         signals.check()
-        paths = write_outputs(records, out, scene=str(scene), reference=reference, notes=notes, spectra=spectra,
-                              maps=maps)
+        paths, kept = write_outputs(records, out, scene=str(scene), reference=reference, notes=notes,
+                                    spectra=spectra, maps=maps)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
-                         cluster_renders=cluster_renders, notes=notes)
+                         cluster_renders=cluster_renders, notes=notes, kept=kept)
 
 
 def _plan(scene: Path, out: Path, reference: str | os.PathLike | None, report: bool):
@@ -219,11 +223,12 @@ def _rendered_reference(scene: Path, params: dict[str, str], out: Path, spp: int
 
 
 def write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, reference: Path, notes: list[str],
-                  spectra: dict, maps: dict | None, title: str | None = None) -> dict[str, Path]:
+                  spectra: dict, maps: dict | None, title: str | None = None) -> tuple[dict[str, Path], list[str]]:
     """The report's files (:func:`pointillist.compare.report.write_report`) and, with ``maps`` (not
     None), the page (:func:`pointillist.compare.html.write_html_report`), each group written only
     when what it is made from changed (:mod:`pointillist.compare.outputs`); the page's summary is
-    added to ``notes``. Returns the paths by role (``html``: the page)."""
+    added to ``notes``. Returns the paths by role (``html``: the page) and the roles left as they
+    were."""
     from pointillist.compare import outputs
     from pointillist.compare.report import report_paths
 
@@ -231,7 +236,7 @@ def write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, ref
     stat = reference.stat()
     made_from = {"records": [record_json(r) for r in records], "scene": scene, "reference": str(reference),
                  "reference_file": [stat.st_size, stat.st_mtime_ns], "title": title}
-    paths = report_paths(out)
+    paths, kept = report_paths(out), []
     key = outputs.outputs_key(**made_from, notes=notes)
     if outputs.unchanged(out, "report", key) is None:
         from pointillist.compare.report import write_report
@@ -239,8 +244,10 @@ def write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, ref
         paths = write_report(records, out, scene=scene, reference=str(reference), title=title, notes=notes,
                              spectra=spectra)
         outputs.remember(out, "report", key, list(paths.values()))
+    else:
+        kept += list(paths)
     if maps is None:
-        return paths
+        return paths, kept
     from pointillist.compare.html import REPORT_NAME
 
     key = outputs.outputs_key(**made_from)
@@ -251,9 +258,11 @@ def write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, ref
         page = write_html_report(records, out, scene=scene, reference=reference, title=title, maps=maps)
         info = {"summary": page.summary}
         outputs.remember(out, "page", key, [page.path], info)
+    else:
+        kept.append("html")
     paths["html"] = out / REPORT_NAME
     notes.append(info["summary"])
-    return paths
+    return paths, kept
 
 
 def _reference_spp(metadata: dict) -> int | None:
