@@ -132,8 +132,9 @@ def describe_methods() -> str:
 
     Examples
     --------
-    >>> describe_methods().startswith("pointillist's grid (samples at the centres of a regular sub-pixel grid), ")
-    True
+    >>> text = describe_methods()
+    >>> "grid (samples at the centres of a regular sub-pixel grid)" in text, "Mitsuba's independent (also random)" in text
+    (True, True)
     """
     from pointillist import plugins
 
