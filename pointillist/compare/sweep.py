@@ -179,16 +179,19 @@ def _render_tasks(scene_path: str, tasks: Sequence[Task], *, params: dict[str, s
     """The sweep's first step: every task's record, rendered or found finished, with its progress."""
     import sys
 
-    from tqdm import tqdm
-
     from pointillist.compare.tables import format_time
 
     records = []
     terminal = progress and sys.stderr.isatty()
-    bar = tqdm(tasks, desc="compare", unit="render", disable=not terminal)
-    for number, task in enumerate(bar, 1):
+    bar = None
+    if terminal:  # (tqdm's import alone is a tenth of a cached rerun: only for a bar)
+        from tqdm import tqdm
+
+        bar = tqdm(tasks, desc="compare", unit="render")
+    for number, task in enumerate(bar if bar is not None else tasks, 1):
         signals.check()
-        bar.set_postfix_str(task.stem)
+        if bar is not None:
+            bar.set_postfix_str(task.stem)
         record = render(scene_path, task.method, task.value, task.seed, params, out_dir, key)
         records.append(record)
         if record.notice and log is not None:
