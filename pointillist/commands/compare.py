@@ -6,8 +6,9 @@ FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
 (table, fitted slopes, equal-time and equal-error rankings), DIR/error_vs_time.png,
 DIR/error_vs_spp.png, the renders (EXR files in DIR/renders/) and DIR/report.html, a
 self-contained page (open it from disk in a browser) with the table, interactive
-plots and the renders and error maps side by side. Finished renders are kept:
-running the same command again resumes an interrupted sweep.
+plots and the renders and error maps side by side. Finished renders and their
+scores are kept: running the same command again resumes an interrupted sweep, and
+leaves the report's files alone while what they show is unchanged.
 """
 
 from __future__ import annotations
