@@ -52,7 +52,7 @@ class CompareResult:
     """What :func:`compare_scene` did: the records, the report's files, the reference used.
 
     ``kept``: the roles of ``paths`` left as they were, because what they are made from had not
-    changed since they were written (:func:`write_outputs`)."""
+    changed since they were written (:mod:`pointillist.compare.outputs`)."""
 
     records: list[RenderRecord]
     paths: dict[str, Path]
@@ -156,8 +156,8 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
                             progress=progress, log=log, maps=maps, spectra=spectra, key=key)
         signals.check()
-        paths, kept = write_outputs(records, out, scene=str(scene), reference=reference, notes=notes,
-                                    spectra=spectra, maps=maps)
+        paths, kept = _write_outputs(records, out, scene=str(scene), reference=reference, notes=notes,
+                                     spectra=spectra, maps=maps)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
                          cluster_renders=cluster_renders, notes=notes, kept=kept)
 
@@ -222,8 +222,8 @@ def _rendered_reference(scene: Path, params: dict[str, str], out: Path, spp: int
     return reference
 
 
-def write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, reference: Path, notes: list[str],
-                  spectra: dict, maps: dict | None, title: str | None = None) -> tuple[dict[str, Path], list[str]]:
+def _write_outputs(records: Sequence[RenderRecord], out: Path, *, scene: str, reference: Path, notes: list[str],
+                   spectra: dict, maps: dict | None, title: str | None = None) -> tuple[dict[str, Path], list[str]]:
     """The report's files (:func:`pointillist.compare.report.write_report`) and, with ``maps`` (not
     None), the page (:func:`pointillist.compare.html.write_html_report`), each group written only
     when what it is made from changed (:mod:`pointillist.compare.outputs`); the page's summary is

@@ -72,7 +72,7 @@ class Method:
     configure: Callable[[ET.Element, float], None] | None = None
     summary: str = ""
 
-#: Registered methods by name: the sampler methods (:func:`_register_samplers`), then the others.
+#: Registered methods by name: every sampler plugin of pointillist and of Mitsuba, the aliases, then the others.
 METHODS: dict[str, Method] = {}
 
 def register_method(method: Method) -> None:
