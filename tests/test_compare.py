@@ -424,11 +424,14 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
         mse = [np.mean([float(r["rmse"]) ** 2 for r in rows if r["method"] == method and r["spp"] == s])
                for s in ("1.0", "4.0", "16.0")]
         assert mse[0] > mse[1] > mse[2], (method, mse)
-    stamps = {p: p.stat().st_mtime_ns for p in (out / "renders").rglob("*.*")}
-    kept = [p for p in stamps if p.name.endswith(".maps.npz")]
-    assert len(kept) == 24  # every render's error spectrum, and the seed-0 renders' maps:
-    assert sum("flip" in np.load(p).files for p in kept) == 12
     written = {name: (out / name).stat().st_mtime_ns for name in ("results.csv", "results.md", "report.html")}
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "renders").rglob("*.*")}
+    stored = [p for p in stamps if p.name.endswith(".maps.npz")]
+    assert len(stored) == 24   # every render's error spectrum; the seed-0 renders' per-pixel maps too
+    for path in stored:
+        with np.load(path) as held:
+            assert ("relmse" in held.files) == path.name.endswith("_seed0.maps.npz"), (path.name, held.files)
+            assert held["spectrum_power"].ndim == 1 and np.all(held["spectrum_power"] >= 0)
     again = cli(*args)
     assert again.returncode == 0 and "(0 new, 24 reused)" in again.stdout
     # nothing scored again: no record or map rewritten; nor the report, which shows the same
