@@ -65,7 +65,7 @@ def main(argv=None) -> int:
 
     from pointillist.compare import REFERENCE_SAMPLER, REFERENCE_SEED
     from pointillist.imaging.metrics import image_errors
-    from pointillist.compare_methods import METHODS, load_configured_scene
+    from pointillist.compare.methods import METHODS, load_configured_scene
     from pointillist.scene import load_scene, timed_render
 
     params = {"res": str(args.res)} if args.res else {}

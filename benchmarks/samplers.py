@@ -96,8 +96,8 @@ def main() -> None:
     import mitsuba as mi
 
     import pointillist
-    from pointillist.compare_methods import METHODS, load_configured_scene
-    from pointillist.compare_report import fit_slope
+    from pointillist.compare.methods import METHODS, load_configured_scene
+    from pointillist.compare.tables import fit_slope
 
     pointillist.setup()
     from pointillist.plugins.samplers.poisson import poisson_disk_points
@@ -212,8 +212,8 @@ def sobol_part(args) -> None:
     import mitsuba as mi
 
     import pointillist
-    from pointillist.compare_methods import METHODS, load_configured_scene
-    from pointillist.compare_report import fit_slope
+    from pointillist.compare.methods import METHODS, load_configured_scene
+    from pointillist.compare.tables import fit_slope
     from pointillist.scene import timed_render
 
     pointillist.setup()

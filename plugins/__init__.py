@@ -1,17 +1,28 @@
 """pointillist's Mitsuba 3 plugins, written in Python on Dr.Jit.
 
 Each plugin lives in its own module under ``plugins/integrators/``,
-``plugins/samplers/`` or ``plugins/bsdfs/``. A plugin module defines its class
-at module level and names it::
+``plugins/samplers/`` or ``plugins/bsdfs/``, and its name is the module's file name,
+as in Mitsuba (whose sampler ``independent`` is the library ``independent.so``):
+``plugins/samplers/jitter.py`` is the sampler ``jitter`` of scene XML and
+``mi.load_dict``. The kind (integrator, sampler, BSDF) is the folder. A plugin module
+names its class at module level::
 
-    PLUGIN_NAME = "whitted"          # the name used in scene XML / load_dict
-    PLUGIN_CLASS = WhittedIntegrator
+    PLUGIN_CLASS = JitterSampler
 
-The kind (integrator, sampler, BSDF) is the folder the module lives in.
+and its docstring opens with one line ``The ``jitter`` sampler: what it does.``
+(:func:`summary`, shown by ``pointillist compare -h``). Modules whose names start with
+``_`` are helpers, never registered. Nothing else lists the plugins: :func:`available`
+reads the folders (importing nothing), :func:`register` registers what it finds and
+gives each class its name as the attribute ``PLUGIN_NAME``, and ``pointillist compare``
+sweeps every sampler found.
+
 Because Mitsuba's Python base classes (``mi.SamplingIntegrator``, ``mi.BSDF``,
 ``mi.Sampler``) only exist once a variant is set (mitsuba3 #1611), plugin
 modules are imported by :func:`register`, after ``mi.set_variant``; they are
-re-imported when the variant changes.
+re-imported when the variant changes. This package itself imports neither Mitsuba
+nor Dr.Jit (``pointillist -h`` lists the samplers without a libLLVM); its sub-packages,
+which hold the plugins, point Dr.Jit at a usable libLLVM first
+(:func:`pointillist.llvm.ensure_llvm`).
 
 Usage::
 
@@ -24,15 +35,13 @@ Usage::
 
 from __future__ import annotations
 
-from pointillist.llvm import ensure_llvm as _ensure_llvm
+import ast
+import importlib
+import pkgutil
+import sys
+from pathlib import Path
 
-_ensure_llvm()
-
-import importlib  # noqa: E402
-import pkgutil  # noqa: E402
-import sys  # noqa: E402
-
-__all__ = ["register", "registered", "KINDS", "DEFAULT_VARIANT"]
+__all__ = ["register", "registered", "available", "summary", "KINDS", "DEFAULT_VARIANT"]
 
 #: Folder -> Mitsuba registration function name.
 KINDS = {
@@ -47,26 +56,69 @@ DEFAULT_VARIANT = "llvm_ad_rgb"
 _registered: dict[str, dict[str, str]] = {}
 
 
-def _plugin_modules(kind: str) -> list[str]:
-    package = importlib.import_module(f"{__name__}.{kind}")
-    return sorted(
-        f"{__name__}.{kind}.{info.name}"
-        for info in pkgutil.iter_modules(package.__path__)
-        if not info.name.startswith("_")
-    )
+def _module_names(folder: str) -> list[str]:
+    """The plugin names of a folder of :data:`KINDS`: its modules not starting with ``_``, sorted
+    (read from the folder: importing the sub-package would load libLLVM)."""
+    return sorted(info.name for info in pkgutil.iter_modules([str(Path(__path__[0]) / folder)])
+                  if not info.name.startswith("_") and not info.ispkg)
+
+
+def available(kind: str | None = None) -> dict[str, str]:
+    """``name -> kind`` (``integrator``, ``sampler``, ``bsdf``) of every plugin, from the file names.
+
+    Imports no plugin and no Mitsuba (cheap enough for a command's ``-h``): the plugins
+    :func:`register` registers. ``kind`` keeps only that kind.
+
+    Examples
+    --------
+    >>> available("sampler")["jitter"], "whitted" in available("integrator")
+    ('sampler', True)
+    """
+    kinds = {folder[:-1]: folder for folder in KINDS}
+    if kind is not None and kind not in kinds:
+        raise ValueError(f"kind: expected one of {', '.join(kinds)}, got {kind!r}")
+    return {name: singular for singular, folder in kinds.items() if kind in (None, singular)
+            for name in _module_names(folder)}
+
+
+def summary(name: str) -> str:
+    """What plugin ``name`` does, in one line: its module docstring's first line after the colon.
+
+    Reads the module's source (imports nothing).
+
+    Examples
+    --------
+    >>> summary("grid")
+    'samples at the centres of a regular sub-pixel grid'
+    """
+    kind = available().get(name)
+    if kind is None:
+        raise ValueError(f"name: no pointillist plugin named {name!r}; expected one of "
+                         f"{', '.join(sorted(available()))}")
+    source = Path(__path__[0]) / f"{kind}s" / f"{name}.py"
+    docstring = ast.get_docstring(ast.parse(source.read_text(encoding="utf-8"))) or ""
+    first = docstring.splitlines()[0] if docstring else ""
+    head, colon, text = first.partition(":")
+    if not colon or f"``{name}``" not in head:
+        raise ValueError(f"plugin {name}: its module docstring must open with 'The ``{name}`` {kind}: ...', "
+                         f"got {first!r}")
+    return text.strip().rstrip(".")
 
 
 def register() -> dict[str, str]:
     """Register every plugin of the project with Mitsuba for the current variant.
 
     Idempotent: a second call for the same variant does nothing. Returns a
-    mapping ``plugin name -> kind`` of what is registered.
+    mapping ``plugin name -> kind`` of what is registered (:func:`available`).
 
     Raises
     ------
     RuntimeError
         If no Mitsuba variant is set (call ``mi.set_variant`` first).
     """
+    from pointillist.llvm import ensure_llvm
+
+    ensure_llvm()
     import mitsuba as mi
 
     variant = mi.variant()
@@ -78,17 +130,19 @@ def register() -> dict[str, str]:
     if variant in _registered:
         return dict(_registered[variant])
     names: dict[str, str] = {}
-    for kind, function in KINDS.items():
-        for module_name in _plugin_modules(kind):
+    for folder, function in KINDS.items():
+        for name in _module_names(folder):
+            module_name = f"{__name__}.{folder}.{name}"
             module = sys.modules.get(module_name)
             if module is not None and getattr(module, "_VARIANT", None) != variant:
                 module = importlib.reload(module)
             elif module is None:
                 module = importlib.import_module(module_name)
             module._VARIANT = variant
-            name, cls = module.PLUGIN_NAME, module.PLUGIN_CLASS
+            cls = module.PLUGIN_CLASS
+            cls.PLUGIN_NAME = name  # the file's name: written nowhere else
             getattr(mi, function)(name, lambda props, cls=cls: cls(props))
-            names[name] = kind[:-1]
+            names[name] = folder[:-1]
     _registered[variant] = names
     return dict(names)
 

@@ -15,10 +15,12 @@ __version__ = "0.1.0"
 __all__ = ["setup", "__version__"]
 
 
-def setup(variant: str = "llvm_ad_rgb"):
+def setup(variant: str = "llvm_ad_rgb", *, plugins: bool = True):
     """Point Dr.Jit at a usable libLLVM, set the Mitsuba variant, register the plugins.
 
-    Returns the ``mitsuba`` module. Raises :class:`pointillist.llvm.LLVMNotFoundError`
+    Returns the ``mitsuba`` module. With ``plugins=False`` the plugins are not registered (yet):
+    enough to parse a scene (about a third less start-up), not to build one that uses them; a
+    later ``setup()`` registers them. Raises :class:`pointillist.llvm.LLVMNotFoundError`
     when no usable libLLVM exists and ValueError for an unknown variant.
     """
     from pointillist.llvm import ensure_llvm
@@ -30,9 +32,10 @@ def setup(variant: str = "llvm_ad_rgb"):
         raise ValueError(f"variant: unknown Mitsuba variant {variant!r}; available: {', '.join(mi.variants())}")
     if mi.variant() != variant:
         mi.set_variant(variant)
-    from pointillist import plugins
+    if plugins:
+        from pointillist import plugins as registry
 
-    plugins.register()
+        registry.register()
     from pointillist import signals
 
     signals.check()  # a safe point: start-up (imports, libLLVM check, plugins) is done

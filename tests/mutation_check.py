@@ -95,7 +95,7 @@ FLIP_REFERENCE = "reference, test = clean(r), clean(x)"
 FLIP_CALL = 'result = _flip_drjit(test, reference, dynamic_range="hdr",'
 QUANTISER = "thresholds = work[:-1] + (work[1:] - work[:-1]) * (level / 255.0)"
 THRESHOLD_RULE = "values = dr.select(tensor.array >= dr.opaque(Float, float(level))"
-RANGE_SPLIT = "flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)"
+RANGE_SPLIT = "flags = dr.select(spread([shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)"
 
 MUTANTS = [
     # -- error-diffusion tables (the two, then the others)

@@ -415,7 +415,7 @@ def test_aov_names_and_description(mi):
 
 def test_compare_sweeps_adaptive_thresholds_around_the_scene_integrator(mi, tmp_path):
     from pointillist.compare import render_one
-    from pointillist.compare_methods import METHODS, load_configured_scene
+    from pointillist.compare.methods import METHODS, load_configured_scene
 
     method = METHODS["adaptive"]
     assert method.kind == "integrator" and method.parameter == "threshold" and len(method.values) >= 3

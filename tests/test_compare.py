@@ -15,8 +15,8 @@ import pytest
 
 from pointillist.compare import RenderRecord, Task
 from pointillist.imaging.metrics import image_errors
-from pointillist.compare_methods import METHODS, Method, configure_scene, resolve_methods, setting_label
-from pointillist.compare_report import equal_error_ranking, equal_time_ranking, fit_slope
+from pointillist.compare.methods import METHODS, Method, configure_scene, resolve_methods, setting_label
+from pointillist.compare.tables import equal_error_ranking, equal_time_ranking, fit_slope
 from pointillist.errors import UsageError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -67,7 +67,7 @@ def test_resolve_methods():
 
 def test_user_scene_elsewhere_resolves_relative_paths(mi, tmp_path):
     """Any scene works: its sampler is replaced and its relative files still resolve."""
-    from pointillist.compare_methods import load_configured_scene
+    from pointillist.compare.methods import load_configured_scene
 
     folder = tmp_path / "user"
     folder.mkdir()
@@ -89,7 +89,7 @@ def test_configured_scene_loads_serially_like_load_scene(mi, monkeypatch):
     film plugin of type hdrfilm: std::bad_alloc" / "basic_string::_M_create", exit 2 on a valid
     scene; 0 failures in 40 runs after the fix) and instantiates plugins in a random order (new
     kernels each run): compare loads serially, as :func:`pointillist.scene.load_scene` does."""
-    from pointillist.compare_methods import load_configured_scene
+    from pointillist.compare.methods import load_configured_scene
 
     calls = []
     original = mi.parser.instantiate
@@ -223,7 +223,7 @@ def test_setting_label():
 def test_render_one_warms_up_once_per_method(mi, tmp_path, monkeypatch):
     """A method's first render in a process is rendered twice (the first untimed, its times
     recorded apart); later renders of that method, and the reference, once."""
-    import pointillist.compare as compare
+    import pointillist.compare.sweep as compare
     import pointillist.scene as scene_module
 
     calls, timings = [], []
@@ -256,7 +256,8 @@ def test_render_one_warms_up_once_per_method(mi, tmp_path, monkeypatch):
 # ------------------------------------------------------------------------ render_one
 def test_render_one_writes_and_reuses(mi, tmp_path):
     from pointillist.imaging.io import read_exr
-    from pointillist.compare import render_one, task_paths
+    from pointillist.compare import render_one
+    from pointillist.compare.records import task_paths
 
     params = {"res": "12"}
     record = render_one(str(EDGES), "jitter", 4, 0, params, str(tmp_path), warm_up=False)
@@ -320,7 +321,8 @@ def test_run_sweep_keeps_scores_with_each_render(mi, tmp_path, monkeypatch):
     import json
     import os
 
-    import pointillist.compare as compare
+    import pointillist.compare.records as records
+    import pointillist.compare.sweep as compare
     import pointillist.imaging.metrics as metrics
     from pointillist.imaging.io import read_exr, write_exr
 
@@ -351,8 +353,8 @@ def test_run_sweep_keeps_scores_with_each_render(mi, tmp_path, monkeypatch):
         expected = real(read_exr(exr).image, ref_image)
         assert set(expected) == {"rmse", "relmse", "flip", "lowfreq"}
         assert {k: stored[k] for k in expected} == pytest.approx(expected, rel=1e-12)
-        assert stored["scores_key"] == compare.scores_key(exr, compare.image_digest(ref_image)) == record.scores_key
-        with np.load(compare.maps_path(exr)) as kept:  # every render's spectrum, a seed-0 render's maps
+        assert stored["scores_key"] == records.scores_key(exr, records.image_digest(ref_image)) == record.scores_key
+        with np.load(records.maps_path(exr)) as kept:  # every render's spectrum, a seed-0 render's maps
             spectrum = metrics.error_spectrum(read_exr(exr).image, ref_image)
             assert np.array_equal(kept["spectrum_power"], spectrum.power, equal_nan=True)
             assert ("flip" in kept and "relmse" in kept) == (record.seed == 0)
@@ -374,20 +376,20 @@ def test_run_sweep_keeps_scores_with_each_render(mi, tmp_path, monkeypatch):
     # a render written again (its file changes), a lost maps file, a damaged one: those alone
     exr = tmp_path / "renders" / first[1].exr
     os.utime(exr, ns=(exr.stat().st_atime_ns, exr.stat().st_mtime_ns + 10**9))
-    compare.maps_path(tmp_path / "renders" / first[0].exr).unlink()
-    compare.maps_path(tmp_path / "renders" / first[2].exr).write_bytes(b"not a zip file")
+    records.maps_path(tmp_path / "renders" / first[0].exr).unlink()
+    records.maps_path(tmp_path / "renders" / first[2].exr).write_bytes(b"not a zip file")
     sweep(other)
     assert len(scored) == 9
     sweep(other)
     assert len(scored) == 9
     # a new definition of the scores
-    monkeypatch.setattr(compare, "SCORES_VERSION", compare.SCORES_VERSION + 1)
+    monkeypatch.setattr(records, "SCORES_VERSION", records.SCORES_VERSION + 1)
     sweep(other)
     assert len(scored) == 12
 
 
 def test_image_digest_tells_images_apart():
-    from pointillist.compare import image_digest
+    from pointillist.compare.records import image_digest
 
     image = np.zeros((4, 5, 3), np.float32)
     changed = image.copy()
@@ -422,6 +424,7 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
         mse = [np.mean([float(r["rmse"]) ** 2 for r in rows if r["method"] == method and r["spp"] == s])
                for s in ("1.0", "4.0", "16.0")]
         assert mse[0] > mse[1] > mse[2], (method, mse)
+    written = {name: (out / name).stat().st_mtime_ns for name in ("results.csv", "results.md", "report.html")}
     stamps = {p: p.stat().st_mtime_ns for p in (out / "renders").rglob("*.*")}
     stored = [p for p in stamps if p.name.endswith(".maps.npz")]
     assert len(stored) == 24   # every render's error spectrum; the seed-0 renders' per-pixel maps too
@@ -431,8 +434,10 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
             assert held["spectrum_power"].ndim == 1 and np.all(held["spectrum_power"] >= 0)
     again = cli(*args)
     assert again.returncode == 0 and "(0 new, 24 reused)" in again.stdout
-    # nothing scored again: no record or map rewritten
+    # nothing scored again: no record or map rewritten; nor the report, which shows the same
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "renders").rglob("*.*")}
+    assert written == {name: (out / name).stat().st_mtime_ns for name in written}
+    assert "\nkept " in again.stdout and "\nwrote " not in again.stdout and "kept: unchanged)" in again.stdout
 
 
 def test_cli_compare_reference_file_and_bad_input(cli, tmp_path):
@@ -475,10 +480,11 @@ def test_cli_compare_checks_sample_counts_before_rendering(cli, tmp_path):
 def test_docstring_examples_run():
     import doctest
 
-    import pointillist.compare_report as compare_report
     import pointillist.imaging.metrics as metrics
+    from pointillist import plugins
+    from pointillist.compare import html, methods, tables
 
-    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
-               for module in (compare_report, metrics)]
-    assert all(r.attempted >= 2 for r in results) and sum(r.attempted for r in results) >= 6
+    modules = (tables, html, methods, plugins, metrics)
+    results = [doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE) for module in modules]
+    assert all(r.attempted >= 1 for r in results) and sum(r.attempted for r in results) >= 12
     assert all(r.failed == 0 for r in results)

@@ -1,7 +1,9 @@
-"""compare's report.html (pointillist/compare_html.py + pointillist/report/), its tables' times, and
-the page in a real browser: headless Chromium opens it from disk and runs the page's self-test
-(``#selftest``: scripted zoom, pan, exposure, hover and plot clicks; results written into the DOM,
-read back with ``--dump-dom``), its console is read from Chromium's log, and a screenshot is kept.
+"""compare's report.html (pointillist/compare/html.py + pointillist/compare/page/), its tables' times,
+and the page in a real browser: headless Chromium opens it from disk with the self-test
+(tests/compare_page_selftest.js: scripted zoom, pan, exposure, hover and plot clicks, and the page's
+time and sRGB formats; results written into the DOM, read back with ``--dump-dom``) injected into
+the page's script (the page users get holds none of it), its console is read from Chromium's log,
+and a screenshot is kept.
 
 Chromium comes from the test set-up (``make test`` runs the Makefile's ``system-test``: Debian's
 ``chromium`` package). Without it the browser tests skip, except under CI (``CI`` set), where they fail.
@@ -24,12 +26,22 @@ import numpy as np
 import pytest
 
 from pointillist.compare import RenderRecord
+from pointillist.compare.html import colormap_table, encode_half, page_script, subsample_stride, write_html_report
+from pointillist.compare.report import write_report
+from pointillist.compare.tables import TIMING_FLOOR, format_time, results_table, summarise
 from pointillist.imaging.metrics import error_maps, image_errors
-from pointillist.compare_html import colormap_table, encode_half, subsample_stride, write_html_report
-from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, summarise, write_report
 
 ROOT = Path(__file__).resolve().parent.parent
 EDGES = ROOT / "scenes" / "edges.xml"
+SELFTEST = Path(__file__).resolve().parent / "compare_page_selftest.js"
+#: What the self-test formats in the page, to compare with Python: times from 1 ns to 28 h (with the
+#: units' boundaries, values exactly halfway between two roundings, zero and negatives) and linear
+#: values across the sRGB encoding's two pieces, below 0 and above 1.
+SELFTEST_TIMES = sorted({0.0, 1e-9, 2.5e-7, 9.9949e-4, 9.9951e-4, 1e-3, 1.125, 0.001125, 0.0003125, 0.9995, 0.99949,
+                         0.5, 12.345, 999.4, 999.5, 4321.0, 1e5, -0.0123, -1.125,
+                         *np.round(10.0 ** np.random.default_rng(28).uniform(-9, 5, 200), 12).tolist()})
+SELFTEST_LINEAR = np.float32([-1.0, 0.0, 1e-6, 0.0031308, 0.0031309, 0.04, 0.18, 0.5, 0.999, 1.0, 7.0,
+                              *np.random.default_rng(29).uniform(0, 1, 300)]).astype(float).tolist()  # as in EXRs
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
          "--enable-logging=stderr", "--v=0", "--virtual-time-budget=30000"]
@@ -57,7 +69,7 @@ def chromium() -> str:
     pytest.skip(message)
 
 
-def run_chromium(page: Path, workdir: Path, *args: str, fragment: str = "#selftest") -> subprocess.CompletedProcess:
+def run_chromium(page: Path, workdir: Path, *args: str, fragment: str = "") -> subprocess.CompletedProcess:
     """Headless Chromium on ``page`` (a file URL) with a fresh profile; ``args``: --dump-dom, --screenshot=..."""
     browser = chromium()
     profile = Path(workdir) / f"profile-{len(list(Path(workdir).glob('profile-*')))}"
@@ -70,9 +82,26 @@ def console(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if ":CONSOLE" in line]
 
 
+def _script_safe(text: str) -> str:
+    """As the page inlines a script (no ``</`` that would end the element)."""
+    return text.replace("</", "<\\/")
+
+
+def with_selftest(page: Path, workdir: Path) -> Path:
+    """A copy of ``page`` whose script runs the self-test after the page's own scripts, in their scope."""
+    text = page.read_text(encoding="utf-8")
+    shipped = _script_safe(page_script())
+    assert text.count(shipped) == 1 and "selftest" not in text  # the page as shipped: its script alone
+    values = f"var SELFTEST_VALUES = {json.dumps({'times': SELFTEST_TIMES, 'linear': SELFTEST_LINEAR})};"
+    injected = _script_safe(page_script([values, SELFTEST.read_text(encoding="utf-8")]))
+    target = Path(workdir) / f"selftest-{page.name}"
+    target.write_text(text.replace(shipped, injected), encoding="utf-8")
+    return target
+
+
 def selftest(page: Path, workdir: Path) -> tuple[dict, list[str]]:
-    """Open ``page#selftest``; the self-test's results and the console lines."""
-    done = run_chromium(page, workdir, "--dump-dom")
+    """Open ``page`` with the self-test injected; the self-test's results and the console lines."""
+    done = run_chromium(with_selftest(page, workdir), workdir, "--dump-dom")
     assert done.returncode == 0, done.stderr[-3000:]
     found = re.findall(r'<pre id="selftest-result">([^<]*)</pre>', done.stdout)
     assert found, "the page's self-test wrote no result (a script error?):\n" + "\n".join(console(done.stderr))
@@ -109,9 +138,10 @@ def check_page(result: dict, lines: list[str], data: dict) -> None:
     linear = 2 * np.array(result["exposure"]["value"])
     encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.maximum(linear, 0) ** (1 / 2.4) - 0.055)
     np.testing.assert_allclose(result["exposure"]["after"], np.round(255 * np.clip(encoded, 0, 1)), atol=1)
-    # a click on a plot point shows that very render
+    # a click on a plot point shows that very render, and outlines the point in both plots
     assert result["click"]["mode"] == "time" and result["click"]["shown"]
     assert set(result["click"]["shown"]) == {result["click"]["point"]}
+    assert result["click"]["selected"] == [result["click"]["index"]] * 2
     # the error spectrum beside the maps: one curve per render on show, every positive power of its spectrum drawn
     assert [c["render"] for c in result["spectrum"]] == result["spectrum_columns"]
     for curve in result["spectrum"]:
@@ -121,6 +151,12 @@ def check_page(result: dict, lines: list[str], data: dict) -> None:
     assert result["click"]["point"] in result["click"]["spectrum"]  # the clicked render's spectrum is on show
     assert result["plots"] == [{"axis": "time", "points": len(data["points"])},
                                {"axis": "spp", "points": len(data["points"])}]
+    # the page writes times as results.md does, and encodes sRGB as the PNG writer does
+    assert result["formats"]["times"] == [format_time(t) for t in SELFTEST_TIMES]
+    from pointillist.imaging.io import to_8bit
+
+    expected = to_8bit(np.array(SELFTEST_LINEAR)[:, None]).ravel().tolist()
+    assert result["formats"]["srgb"] == expected
 
 
 def fake_record(method: str, value: float, time: float, rmse: float, exr: str = "", seed: int = 0,
@@ -173,7 +209,7 @@ def test_report_leaves_short_renders_out_of_time_slopes_and_rankings(tmp_path):
 def test_spectrum_plot_averages_seeds_and_places_other_sweeps_at_their_spp(tmp_path):
     """error_spectrum.png: per (method, value) the seeds' mean spectrum, a panel per spp; adaptive (a threshold
     sweep) joins the panel of its mean spp."""
-    from pointillist.compare_report import mean_spectra
+    from pointillist.compare.report import mean_spectra
     from pointillist.imaging.spectrum import RadialSpectrum
 
     frequency, count = np.array([0.0, 0.25, 0.5]), np.array([1, 4, 3])
@@ -219,13 +255,13 @@ def test_run_sweep_logs_one_line_per_render_off_a_terminal(tmp_path, capsys):
     lines = []
     tasks = [Task("jitter", 4, 0), Task("jitter", 4, 1)]
     records = run_sweep(str(EDGES), tasks, params=None, out_dir=str(tmp_path), reference=reference,
-                        log=lines.append, render=render)
+                        log=lines.append, render=render, key="k")  # the key given: no scene to parse
     assert lines == ["compare 1/2: jitter_spp00004_seed0 12.3 ms", "compare 2/2: jitter_spp00004_seed1 (reused)"]
     assert capsys.readouterr().err == ""  # no progress bar drawn into a log
     assert records[0].rmse == 0 and records[1].rmse == pytest.approx(0.1)
     maps = {}
     again = run_sweep(str(EDGES), tasks, params=None, out_dir=str(tmp_path), reference=reference, progress=False,
-                      log=lines.append, maps=maps, render=render)
+                      log=lines.append, maps=maps, render=render, key="k")
     assert len(lines) == 2  # progress off: no lines either
     # the per-pixel maps of the seed-0 render, kept for the page (FLIP computed once); their means are the errors
     assert list(maps) == [records[0].exr] and set(maps[records[0].exr]) == {"relmse", "flip"}
@@ -410,7 +446,7 @@ def test_compare_report_opens_in_chromium(sweep_report, tmp_path):
     assert "relMSE" in result["readout"] and "FLIP" in result["readout"]
     # a screenshot as the test's artefact
     shot = tmp_path / "report.png"
-    done = run_chromium(sweep_report, tmp_path, f"--screenshot={shot}", "--window-size=1400,1300", fragment="")
+    done = run_chromium(sweep_report, tmp_path, f"--screenshot={shot}", "--window-size=1400,1300")
     assert done.returncode == 0 and console(done.stderr) == [], done.stderr[-2000:]
     from PIL import Image
 

@@ -68,7 +68,7 @@ def test_broken_library_fails_the_probe(tmp_path):
     folder = tmp_path / "lib"
     folder.mkdir()
     (folder / "libLLVM-19.so").write_bytes(b"not a shared library")
-    proc = _run("import pointillist.plugins", _env(tmp_path, str(folder)))
+    proc = _run("import pointillist.plugins.samplers", _env(tmp_path, str(folder)))
     assert proc.returncode == 1
     assert "failed a Dr.Jit test kernel" in proc.stderr and "libllvm19" in proc.stderr
 

@@ -188,7 +188,7 @@ def test_zsobol_film_layout(mi):
     assert film_layout(film_of(mi, 32, 16), 100) == (10, 0, 0, 10)  # another wavefront: a square guess
     assert film_layout(None, 1) == (1, 0, 0, 1) and film_layout(None, 12) == (4, 0, 0, 4)
     # scenes loaded through pointillist hand zsobol its film; plain Mitsuba loading does not
-    from pointillist.compare_methods import METHODS, load_configured_scene
+    from pointillist.compare.methods import METHODS, load_configured_scene
 
     scene = load_configured_scene(EDGES, METHODS["zsobol"], 4, {"res": "8"})
     assert "film=attached" in str(scene.sensors()[0].sampler())
@@ -348,7 +348,7 @@ def test_zsobol_error_is_blue_noise_where_neighbours_integrate_alike(mi):
 
 def _edges_errors(mi, name, spp, seeds, res=64):
     """Luminance error images of scenes/edges.xml against a 4096-spp stratified reference."""
-    from pointillist.compare_methods import METHODS, load_configured_scene
+    from pointillist.compare.methods import METHODS, load_configured_scene
     from pointillist.imaging.metrics import luminance_error
 
     global _REFERENCE
@@ -371,7 +371,7 @@ def test_edges_convergence_and_error_distribution(mi):
     zsobol converge at least as fast as jitter (MSE slope over 1..64 spp), zsobol's MSE stays within 10 %
     of sobol's at 1 and 4 spp, and at 4 spp zsobol's error holds at most half of random's energy below a
     quarter of Nyquist. (At 1 spp it does not on this scene: benchmarks/RESULTS.md, "sobol and zsobol".)"""
-    from pointillist.compare_report import fit_slope
+    from pointillist.compare.tables import fit_slope
     from pointillist.imaging.spectrum import low_frequency_energy
 
     seeds = range(8)  # (with 4, zsobol's MSE at 4 spp came out 0.93x sobol's: noise, 0.97x with 8)

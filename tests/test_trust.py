@@ -146,8 +146,9 @@ def test_compare_stops_when_a_texture_changes_during_the_sweep(mi, assets, tmp_p
     from PIL import Image
 
     import pointillist.compare as compare
+    import pointillist.compare.sweep as sweep
 
-    real, count = compare.load_configured_scene, []
+    real, count = sweep.load_configured_scene, []
 
     def load(*args, **kwargs):  # the user saves the texture while the second render loads
         count.append(1)
@@ -155,7 +156,7 @@ def test_compare_stops_when_a_texture_changes_during_the_sweep(mi, assets, tmp_p
             Image.fromarray(np.full((4, 4, 3), 7, np.uint8)).save(assets / "tex" / "wall.png")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(compare, "load_configured_scene", load)
+    monkeypatch.setattr(sweep, "load_configured_scene", load)
     with pytest.raises(UsageError, match="changed during the sweep"):
         compare.compare_scene(assets / "scene.xml", methods="grid", spp=[1, 4], reference_spp=4,
                               out_dir=tmp_path / "c", progress=False, report=False)
@@ -472,7 +473,7 @@ def test_report_page_clips_values_beyond_half_precision():
     infinity, and numpy's overflow warning reached stderr as two more lines."""
     import warnings
 
-    from pointillist.compare_html import encode_half
+    from pointillist.compare.html import encode_half
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -147,15 +147,8 @@ def plugin_classes() -> dict[str, tuple[str, type]]:
     from pointillist import plugins
 
     pointillist.setup()
-    found = {}
-    for name, kind in plugins.registered().items():
-        found[name] = (kind, None)
-    for module in list(sys.modules.values()):
-        module_name = getattr(module, "__name__", "")
-        if module_name.startswith("pointillist.plugins.") and hasattr(module, "PLUGIN_CLASS"):
-            if module.PLUGIN_NAME in found:
-                found[module.PLUGIN_NAME] = (found[module.PLUGIN_NAME][0], module.PLUGIN_CLASS)
-    return found
+    return {name: (kind, getattr(sys.modules.get(f"pointillist.plugins.{kind}s.{name}"), "PLUGIN_CLASS", None))
+            for name, kind in plugins.registered().items()}
 
 
 def plugin_title(docstring: str) -> tuple[str, list[str], list[str]]:
@@ -175,7 +168,7 @@ def plugin_title(docstring: str) -> tuple[str, list[str], list[str]]:
 
 
 def is_plugin_class(obj) -> bool:
-    """A class registered with Mitsuba by pointillist (it carries the module's ``PLUGIN_NAME``)."""
+    """A class registered with Mitsuba by pointillist (its module's ``PLUGIN_CLASS``)."""
     if not inspect.isclass(obj):
         return False
     module = sys.modules.get(obj.__module__)
@@ -372,7 +365,7 @@ def process_docstring(app, what, name, obj, options, lines):
     constants without a doc comment: their value (autodoc would show their type's docstring)."""
     if what == "class" and is_plugin_class(obj):
         title = plugin_title(inspect.getdoc(obj) or "Mitsuba plugin")[0]
-        plugin = sys.modules[obj.__module__].PLUGIN_NAME
+        plugin = obj.PLUGIN_NAME  # given by pointillist.plugins.register(): the module's file name
         lines[:] = [f"{title}. A Mitsuba plugin; its parameters and behaviour: :ref:`plugin-{plugin}`.", ""]
         return
     if what in ("data", "attribute"):

@@ -7,7 +7,7 @@ import mitsuba as mi
 
 from pointillist.plugins.properties import texture_property
 
-__all__ = ["LambertBSDF", "PLUGIN_NAME", "PLUGIN_CLASS"]
+__all__ = ["LambertBSDF", "PLUGIN_CLASS"]
 
 
 class LambertBSDF(mi.BSDF):
@@ -46,9 +46,6 @@ class LambertBSDF(mi.BSDF):
             <rgb name="reflectance" value="0.2, 0.25, 0.7"/>
         </bsdf>
     """
-
-    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
-    PLUGIN_NAME = "lambert"
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -113,5 +110,4 @@ class LambertBSDF(mi.BSDF):
         return f"LambertBSDF[\n  reflectance = {self.m_reflectance}\n]"
 
 
-PLUGIN_NAME = "lambert"
 PLUGIN_CLASS = LambertBSDF

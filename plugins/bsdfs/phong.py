@@ -8,7 +8,7 @@ import mitsuba as mi
 from pointillist.plugins.bsdfs._common import safe_power, texture_range
 from pointillist.plugins.properties import texture_property
 
-__all__ = ["PhongBSDF", "PLUGIN_NAME", "PLUGIN_CLASS"]
+__all__ = ["PhongBSDF", "PLUGIN_CLASS"]
 
 #: Below this magnitude of ``t = log(u) / (n + 1)`` the sampler computes
 #: ``1 - cos^2(alpha) = -expm1(2 t)`` from its Taylor series instead of
@@ -89,9 +89,6 @@ class PhongBSDF(mi.BSDF):
             <float name="exponent" value="50"/>
         </bsdf>
     """
-
-    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
-    PLUGIN_NAME = "phong"
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -217,5 +214,4 @@ class PhongBSDF(mi.BSDF):
                 f"  specular_reflectance = {self.m_ks},\n  exponent = {self.m_exponent}\n]")
 
 
-PLUGIN_NAME = "phong"
 PLUGIN_CLASS = PhongBSDF

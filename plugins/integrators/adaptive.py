@@ -11,15 +11,17 @@ from __future__ import annotations
 import math
 import time
 from statistics import NormalDist
+from typing import Any, NamedTuple
 
 import drjit as dr
 import mitsuba as mi
 
 from pointillist.imaging.arrays import divmod_u32
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
+from pointillist.plugins.integrators._adaptive_range import (PixelSums, Squares, first_squares, lattice_sums,
+                                                            new_points, next_squares, point_counts, split_squares)
 from pointillist.plugins.integrators._common import develop_film
-from pointillist.plugins.integrators._lanes import (add_blocks, add_by_pixel, all_finite, compact1by1, compact_flags,
-                                                    part1by1)
+from pointillist.plugins.integrators._lanes import add_blocks, add_by_pixel, all_finite
 from pointillist.plugins.properties import boolean_property, integer_property, number_property, string_property
 
 __all__ = ["AdaptiveIntegrator", "SAMPLE_COUNT_AOV", "CRITERIA", "WEIGHTINGS", "srgb_display"]
@@ -40,14 +42,17 @@ MAX_DEPTH_LIMIT = 12
 #: Most rays in one batch (lane indices are 32-bit).
 _MAX_LANES = 1 << 31
 
-#: New points of a refined square, on the doubled lattice of the next level, relative to
-#: (2i, 2j): the midpoints of the edges y = j and x = i, the centre, the midpoints of the
-#: edges x = i + 1 and y = j + 1.
-_NEW_DX = (1, 0, 1, 2, 1)
-_NEW_DY = (0, 1, 1, 1, 2)
-#: Point on the 3 x 3 doubled lattice of a square (code u + 3 v) -> index of the new
-#: point (0..4); the four corners (codes 0, 2, 6, 8) are the parent's corners.
-_CODE_TO_NEW = (0, 0, 0, 1, 2, 3, 0, 4, 0)
+
+
+class _RangeRender(NamedTuple):
+    """What every level of one range-criterion render shares."""
+
+    scene: Any
+    sensor: Any
+    seed: int
+    size: tuple[int, int]  # (width, height) of the film
+    threshold: Any         # mi.Float, opaque: the range above which a square is split
+    channels: int          # channels of a sample: R, G, B, alpha, the nested AOVs (not the display values)
 
 
 def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
@@ -208,8 +213,6 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             'nested': {'type': 'direct'}
     """
 
-    PLUGIN_NAME = "adaptive"
-
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         nested = []
@@ -353,267 +356,81 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
     # -- range criterion ------------------------------------------------------------------
     #
-    # Kernel launches per refinement level (every scalar that changes per level or per
-    # call is opaque, and no bound is a Python literal, so nothing recompiles between
-    # levels, thresholds, seeds or square counts):
+    # A render is one batch of rays over the lattice of level min_depth, its pixel sums, the
+    # squares of that level to split, then one _refine per level; the lane arithmetic of each
+    # step is in _adaptive_range, the tracing and the statistics here. Kernel launches per
+    # refinement level (every scalar that changes per level or per call is opaque, and no
+    # bound is a Python literal, so nothing recompiles between levels, thresholds, seeds or
+    # square counts):
     #   1. the level's squares, gathered from their parents through the compacted list,
     #      with their right / lower neighbours (O(1) look-ups in the parent level's
     #      prefix sum: a neighbour is a sibling or a child of the parent's neighbour)
-    #      and their point counts;
+    #      and their point counts (point_counts);
     #   2. an inclusive prefix sum of the counts (one host read: the ray batch size);
     #   3. the ray batch: a scatter marks where each square's points start and an
     #      inclusive prefix sum of the marks gives each lane its square (before: a
     #      binary search per lane, 30% more time per ray), then the lane places its
-    #      point and runs the nested integrator;
+    #      point (new_points) and runs the nested integrator;
     #   4. per square: its five new samples, what the split adds to its pixel, the
-    #      sub-squares to split next (flags), and the slots of its points;
+    #      sub-squares to split next (flags), and the slots of its points (split_squares);
     #   5. per run of squares in one pixel: the sum of those additions (one lane per
     #      pixel, in order: deterministic), added into the pixel sums;
     #   6. a prefix sum of the sub-square flags (one host read: the next level's size)
-    #      and the compacted list (a scatter).
-    def _render_range(self, scene, sensor, seed, width, height):
-        size = (width, height)
+    #      and the compacted list (a scatter) (next_squares).
+    def _render_range(self, scene, sensor, seed, width, height) -> PixelSums:
         m = self.min_depth
-        side = 1 << m
         stride, rows = (width << m) + 1, (height << m) + 1
         if stride * rows >= _MAX_LANES:
             raise ValueError(f"min_depth: a {width} x {height} film split to depth {m} needs "
                              f"{stride * rows} lattice rays, more than {_MAX_LANES}")
-        n_pixels = width * height
-        threshold = dr.opaque(mi.Float, self.threshold)
-        o_width = dr.opaque(mi.UInt32, width)
-        o_stride = dr.opaque(mi.UInt32, stride)
-        o_shift = dr.opaque(mi.UInt32, m)
-        o_side = dr.opaque(mi.UInt32, side)
-        area = self.weighting == "area"
-
+        run = _RangeRender(scene, sensor, seed, (width, height), dr.opaque(mi.Float, self.threshold), channels=0)
         # Batch 0: the uniform lattice of level min_depth (min_depth 0: the pixel corners,
         # (W + 1) x (H + 1) rays), step h = 2^-min_depth pixels.
         ly, lx = divmod_u32(dr.arange(mi.UInt32, stride * rows), stride)
         step = dr.opaque(mi.Float, 0.5 ** m)
         sampler = self._sampler(sensor, seed, 0, stride * rows, place_rays=True)
-        lattice, finite = self._trace(scene, sensor, sampler,
-                                      mi.Point2f(mi.Float(lx) * step, mi.Float(ly) * step), size, 0.5 ** m,
-                                      display=True)
-        nc = len(lattice) - 3  # the last three: display values
+        lattice, finite = self._trace(scene, sensor, sampler, mi.Point2f(mi.Float(lx) * step, mi.Float(ly) * step),
+                                      run.size, 0.5 ** m, display=True)
         del sampler, lx, ly
-
-        # Pixel sums over the (2^m + 1)^2 lattice points of each pixel: trapezoidal
-        # weights w(u) w(v) h^2 (w = 1/2 on the pixel border, 1 inside) for ``area``,
-        # 1 for ``equal``. One lane per pixel, a symbolic loop over its points.
-        py, px = divmod_u32(dr.arange(mi.UInt32, n_pixels), width)
-        base = (py << o_shift) * o_stride + (px << o_shift)
-        h2 = dr.opaque(mi.Float, 0.25 ** m)
-
-        def cond(u, v, *acc):
-            return v <= o_side
-
-        def body(u, v, *acc):
-            at = base + v * o_stride + u
-            ok = dr.gather(mi.Bool, finite, at)
-            if area:
-                weight = (dr.select((u == 0) | (u == o_side), 0.5, 1.0)
-                          * dr.select((v == 0) | (v == o_side), 0.5, 1.0) * h2)
-            else:
-                weight = mi.Float(1.0)
-            updated = [a + dr.select(ok, weight * dr.gather(mi.Float, channel, at, ok), 0.0)
-                       for a, channel in zip(acc[:-1], lattice[:nc])]
-            wrap = u == o_side
-            return (dr.select(wrap, 0, u + 1), dr.select(wrap, v + 1, v), *updated,
-                    acc[-1] + dr.select(ok, weight, 0.0))
-
-        zero = dr.zeros(mi.UInt32, n_pixels)
-        state = dr.while_loop(state=(zero, zero, *[dr.zeros(mi.Float, n_pixels) for _ in range(nc + 1)]),
-                              cond=cond, body=body, label="adaptive_lattice_sum")
-        sums, valid_n = list(state[2:-1]), state[-1]
-        count = dr.full(mi.Float, float((side + 1) ** 2), n_pixels)
-        dr.eval(sums, valid_n, count)
-        del state, py, px, zero  # (base: read by the loop body above)
+        run = run._replace(channels=len(lattice) - 3)  # the last three: display values
+        pixels = lattice_sums(lattice, finite, run.size, m, stride, run.channels, area=self.weighting == "area")
         if m >= self.max_depth:
-            return sums, valid_n, count
-
-        # The squares of level m, lane = pixel * 4^m + Morton code inside the pixel (so
-        # the order is by pixel, and the four children of a square follow each other).
-        local_mask = dr.opaque(mi.UInt32, side * side - 1)
-        coordinate_mask = dr.opaque(mi.UInt32, side - 1)
-        two_m = dr.opaque(mi.UInt32, 2 * m)
-        cells = n_pixels << (2 * m)
-
-        def lattice_square(lane):
-            sy, sx = divmod_u32(lane >> two_m, width)
-            i = (sx << o_shift) | compact1by1(lane & local_mask)
-            j = (sy << o_shift) | compact1by1((lane & local_mask) >> 1)
-            c00 = j * o_stride + i
-            corners = (c00, c00 + 1, c00 + o_stride, c00 + o_stride + 1)
-            return i, j, [[dr.gather(mi.Float, channel, at) for channel in lattice] for at in corners]
-
-        def lane_of(i, j):  # the inverse of lattice_square
-            pixel = (j >> o_shift) * o_width + (i >> o_shift)
-            return (pixel << two_m) | part1by1(i & coordinate_mask) | (part1by1(j & coordinate_mask) << 1)
-
-        quad = lattice_square(dr.arange(mi.UInt32, cells))[2]
-        flags = dr.select(_spread([_shown(values) for values in quad]) > threshold, mi.UInt32(1), 0)
-        sel, pos = compact_flags(flags)
+            return pixels
+        squares = first_squares(lattice, run.size, m, stride, run.threshold)
         self.stats["host_reads"] += 1
-        if sel is None:
-            return sums, valid_n, count
-        i, j, quad = lattice_square(sel)
-        cells_x = dr.opaque(mi.UInt32, width << m)
-        cells_y = dr.opaque(mi.UInt32, height << m)
-        inside_r, inside_t = i + 1 < cells_x, j + 1 < cells_y
-        lane_r = lane_of(dr.select(inside_r, i + 1, i), j)
-        lane_t = lane_of(i, dr.select(inside_t, j + 1, j))
-        found_r = inside_r & (dr.gather(mi.UInt32, flags, lane_r) != 0)
-        found_t = inside_t & (dr.gather(mi.UInt32, flags, lane_t) != 0)
-        square = (i, j, quad, found_r, dr.gather(mi.UInt32, pos, lane_r), found_t, dr.gather(mi.UInt32, pos, lane_t))
-        del quad, flags, pos, sel
+        del lattice, finite
         for level in range(m, self.max_depth):
-            square = self._refine(scene, sensor, seed, size, level, square, sums, valid_n, count, threshold, nc)
-            if square is None:
+            if squares is None:
                 break
-        return sums, valid_n, count
+            squares = self._refine(run, level, squares, pixels)
+        return pixels
 
-    def _refine(self, scene, sensor, seed, size, level, square, sums, valid_n, count, threshold, nc):
-        """Split the ``n`` squares of ``level`` and add what that changes to the pixel sums.
-
-        ``square`` = (``i, j``: coordinates on the level's grid, ``quad``: channels of the
-        four corners, then the right / lower neighbours split at the same level: found
-        flags and indices), unevaluated gathers in the key order (pixel, then Morton code
-        inside it). Returns the same for the sub-squares to split at the next level, or
-        None when there are none.
-        """
-        width, height = size
-        i, j, quad, found_r, index_r, found_t, index_t = square
-        o_width = dr.opaque(mi.UInt32, width)
+    def _refine(self, run: _RangeRender, level: int, squares: Squares, pixels: PixelSums) -> Squares | None:
+        """Split the squares of ``level`` and add what that changes to the pixel sums; returns the
+        sub-squares to split at the next level (None when there are none, or at the last level)."""
         shift = dr.opaque(mi.UInt32, level)
         last_level = level + 1 >= self.max_depth
-
-        # 1. The squares, their pixels and point counts: a neighbour being split at the
-        # same level owns the midpoint of the shared edge (its k = 1 or k = 0 point).
-        owned_r, owned_t = ~found_r, ~found_t
-        points_of = 3 + dr.select(owned_r, mi.UInt32(1), 0) + dr.select(owned_t, mi.UInt32(1), 0)
-        pixel = (j >> shift) * o_width + (i >> shift)
-        dr.eval(i, j, pixel, quad, found_r, index_r, found_t, index_t, points_of)
+        pixel, points_of, owned_r, owned_t = point_counts(squares, shift, run.size[0])
         n = dr.width(pixel)
         o_n = dr.opaque(mi.UInt32, n)
-
-        # 2. Where each square's own points go in the ray batch.
-        end = dr.cumsum(points_of)
+        end = dr.cumsum(points_of)  # where each square's own points end in the ray batch
         total = int(end[n - 1])
         self.stats["host_reads"] += 1
         self.stats["squares"].append(n)
         start = end - points_of
-
-        # 3. The ray batch: lane t belongs to square s = the number of squares s' > 0 whose
-        # points start at or before t (marks at the starts, then an inclusive prefix sum).
-        lane = dr.arange(mi.UInt32, total)
-        marks = dr.zeros(mi.UInt32, total)
-        dr.scatter(marks, mi.UInt32(1), start, start > 0)
-        s = dr.cumsum(marks)
-        k = lane - dr.gather(mi.UInt32, start, s)
-        k = dr.select((k == 3) & dr.gather(mi.Bool, found_r, s), mi.UInt32(4), k)
-        dx = dr.gather(mi.UInt32, mi.UInt32(_NEW_DX), k)
-        dy = dr.gather(mi.UInt32, mi.UInt32(_NEW_DY), k)
-        step = dr.opaque(mi.Float, 0.5 ** (level + 1))
-        gx = 2 * dr.gather(mi.UInt32, i, s) + dx
-        gy = 2 * dr.gather(mi.UInt32, j, s) + dy
-        position = mi.Point2f(mi.Float(gx) * step, mi.Float(gy) * step)
-        sampler = self._sampler(sensor, seed, level + 1, total, place_rays=True)
-        points, finite = self._trace(scene, sensor, sampler, position, size, 0.5 ** (level + 1), display=True)
-        del sampler, lane, s, k, dx, dy, gx, gy, position
-
-        # 4. Per square: the slots of its five new points, what the split adds, the
-        # sub-squares to split next.
-        def start_of(at, active):
-            return dr.gather(mi.UInt32, end, at, active) - dr.gather(mi.UInt32, points_of, at, active)
-
-        slots = [start, start + 1, start + 2,
-                 dr.select(owned_r, start + 3, start_of(index_r, found_r) + 1),
-                 dr.select(owned_t, start + 3 + dr.select(owned_r, mi.UInt32(1), 0), start_of(index_t, found_t))]
-        new = [[dr.gather(mi.Float, channel, slot) for channel in points] for slot in slots]
-        ok_new = [dr.gather(mi.Bool, finite, slot) for slot in slots]
-        # Sample count: each distinct position once per pixel. A point on the edge shared
-        # with a split neighbour in the same pixel is counted by the neighbour (as its
-        # k = 0 / 1 point); across a pixel border both pixels count it.
-        same_r = ((i + 1) >> shift) == (i >> shift)
-        same_t = ((j + 1) >> shift) == (j >> shift)
-        distinct = [True, True, True, owned_r | ~same_r, owned_t | ~same_t]
-        area = dr.opaque(mi.Float, 0.25 ** level)
-        deltas = [mi.Float(0.0) for _ in range(nc)]
-        weight_sum = mi.Float(0.0)
-        for k in range(5):
-            ok = ok_new[k]
-            if self.weighting == "equal":
-                ok &= distinct[k]
-                weight = mi.Float(1.0)
-            else:  # area: edge midpoints gain A/8, the centre A/4 (A: the square's area) ...
-                weight = (0.25 if k == 2 else 0.125) * area
-            for c in range(nc):
-                deltas[c] += dr.select(ok, weight * new[k][c], 0.0)
-            weight_sum += dr.select(ok, weight, 0.0)
-        if self.weighting == "area":  # ... and each corner goes from A/4 to A/16.
-            minus = -3.0 / 16.0 * area
-            for values in quad:
-                good = all_finite(values[:nc])
-                for c in range(nc):
-                    deltas[c] += dr.select(good, minus * values[c], 0.0)
-                weight_sum += dr.select(good, minus, 0.0)
-        added = mi.Float(3.0) + dr.select(distinct[3], 1.0, 0.0) + dr.select(distinct[4], 1.0, 0.0)
-        outputs = deltas + [weight_sum, added]
-        if not last_level:
-            # The 3 x 3 points of the split square (code u + 3 v) on the display scale;
-            # sub-square q = (cx, cy) is split again when its corners differ.
-            shown = [_shown(new[_CODE_TO_NEW[code]]) for code in range(9)]
-            for p, code in enumerate((0, 2, 6, 8)):
-                shown[code] = _shown(quad[p])
-            mask = mi.UInt32(0)
-            for q in range(4):
-                cx, cy = q & 1, q >> 1
-                codes = [(cx + a) + 3 * (cy + b) for b in (0, 1) for a in (0, 1)]
-                keep = _spread([shown[code] for code in codes]) > threshold
-                mask |= dr.select(keep, mi.UInt32(1 << q), 0)
-            outputs += [mask, slots[3], slots[4]]
-        dr.eval(outputs)
-
+        position = new_points(squares, start, total, level)
+        sampler = self._sampler(run.sensor, run.seed, level + 1, total, place_rays=True)
+        points, finite = self._trace(run.scene, run.sensor, sampler, position, run.size, 0.5 ** (level + 1),
+                                     display=True)
+        del sampler, position
+        split = split_squares(squares, points, finite, start, end, points_of, owned_r, owned_t, shift, level,
+                              run.channels, run.threshold, self.weighting, last_level)
         # 5. Sum the additions of each pixel's run of squares (sorted by pixel).
-        add_by_pixel(sums + [valid_n, count], pixel, outputs[:nc + 2], o_n)
+        add_by_pixel(pixels.sums + [pixels.valid_n, pixels.count], pixel, split.outputs[:run.channels + 2], o_n)
         if last_level:
             return None
-
-        # 6. The sub-squares to split next (children follow their parent: key order).
-        mask, slot3, slot4 = outputs[nc + 2:]
-        child = dr.arange(mi.UInt32, 4 * n)
-        flags = (dr.gather(mi.UInt32, mask, child >> 2) >> (child & 3)) & 1
-        sel, pos = compact_flags(flags)
         self.stats["host_reads"] += 1
-        if sel is None:
-            return None
-        ps, q = sel >> 2, sel & 3
-        cx, cy = q & 1, q >> 1
-        child_quad = []
-        for p in range(4):  # corner p = (a, b) of the child: the parent's corner when p == q
-            a, b = p & 1, p >> 1
-            parent = q == p
-            code = (cx + a) + 3 * (cy + b)
-            k = dr.gather(mi.UInt32, mi.UInt32(_CODE_TO_NEW), code)
-            at = dr.select(k < 3, start_of(ps, ~parent) + k,
-                           dr.select(k == 3, dr.gather(mi.UInt32, slot3, ps, ~parent),
-                                     dr.gather(mi.UInt32, slot4, ps, ~parent)))
-            child_quad.append([dr.select(parent, dr.gather(mi.Float, quad[p][c], ps),
-                                         dr.gather(mi.Float, channel, at, ~parent))
-                               for c, channel in enumerate(points)])
-        # Neighbours: the right one of a left child (cx = 0) is its sibling; that of a
-        # right child is the left child in the same row of the parent's right neighbour
-        # (if that one was split too). Likewise below.
-        parent_r = dr.gather(mi.Bool, found_r, ps)
-        lane_r = dr.select(cx == 0, sel + 1, 4 * dr.gather(mi.UInt32, index_r, ps, parent_r) + (q - 1))
-        has_r = (cx == 0) | parent_r
-        parent_t = dr.gather(mi.Bool, found_t, ps)
-        lane_t = dr.select(cy == 0, sel + 2, 4 * dr.gather(mi.UInt32, index_t, ps, parent_t) + (q - 2))
-        has_t = (cy == 0) | parent_t
-        return (2 * dr.gather(mi.UInt32, i, ps) + cx, 2 * dr.gather(mi.UInt32, j, ps) + cy, child_quad,
-                has_r & (dr.gather(mi.UInt32, flags, lane_r, has_r) != 0), dr.gather(mi.UInt32, pos, lane_r, has_r),
-                has_t & (dr.gather(mi.UInt32, flags, lane_t, has_t) != 0), dr.gather(mi.UInt32, pos, lane_t, has_t))
+        return next_squares(squares, split, points, n)
 
     # -- variance criterion ---------------------------------------------------------------
     def _render_variance(self, scene, sensor, seed, spp, width, height):
@@ -669,23 +486,5 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
         return sums, valid_n, count
 
 
-def _shown(values) -> mi.Color3f:
-    """The display colour carried as the last three channels of a sample."""
-    return mi.Color3f(values[-3], values[-2], values[-1])
 
-
-def _spread(quad) -> mi.Float:
-    """Largest per-channel max - min of four display colours, ignoring NaN (invalid)
-    entries; 0 when fewer than one entry is valid."""
-    low = mi.Color3f(dr.inf)
-    high = mi.Color3f(-dr.inf)
-    for value in quad:
-        ok = ~dr.isnan(value)
-        low = dr.select(ok, dr.minimum(low, value), low)
-        high = dr.select(ok, dr.maximum(high, value), high)
-    spread = dr.select(high >= low, high - low, 0.0)
-    return dr.maximum(dr.maximum(spread.x, spread.y), spread.z)
-
-
-PLUGIN_NAME = AdaptiveIntegrator.PLUGIN_NAME
 PLUGIN_CLASS = AdaptiveIntegrator

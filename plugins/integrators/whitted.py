@@ -8,7 +8,7 @@ import mitsuba as mi
 from pointillist.plugins.integrators._offsets import ErrorBounds
 from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 
-__all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_NAME", "PLUGIN_CLASS"]
+__all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_CLASS"]
 
 #: A scene with more emitters than this gets one randomly chosen emitter per
 #: vertex (``Scene.sample_emitter_direction``, unbiased) instead of one shadow
@@ -162,9 +162,6 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         </integrator>
     """
 
-    #: the name this plugin is registered under (read by pointillist.scene.scene_info)
-    PLUGIN_NAME = "whitted"
-
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.max_depth = integer_property(props, "max_depth", 5, 0, MAX_DEPTH_LIMIT,
@@ -272,5 +269,4 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 f"  hide_emitters = {self.hide_emitters},\n  specialize = {self.specialize}\n]")
 
 
-PLUGIN_NAME = "whitted"
 PLUGIN_CLASS = WhittedIntegrator

@@ -244,6 +244,8 @@ class GridLayout(PatternSampler):
     """Base of the grid samplers (``grid``, ``jitter``): ``rows x cols == sample_count`` cells,
     laid out by :func:`grid_shape`; sub-classes place a sample inside its cell (``_pattern``)."""
 
+    PLUGIN_NAME: str  # the sub-class's plugin name, given by pointillist.plugins.register()
+
     def _configure(self, spp: int) -> None:
         rows, cols = grid_shape(spp)
         if cols / rows > MAX_GRID_ASPECT:

@@ -189,7 +189,7 @@ class SobolBase(mi.Sampler):
     not recompile the kernels.
     """
 
-    PLUGIN_NAME = ""
+    PLUGIN_NAME: str  # the sub-class's plugin name, given by pointillist.plugins.register()
     _STATE: tuple[str, ...] = ()
 
     def __init__(self, props: mi.Properties):

@@ -50,8 +50,6 @@ class GridSampler(GridLayout):
             'sample_count': 16
     """
 
-    PLUGIN_NAME = "grid"
-
     def _pattern(self, sample, pixel_key):
         col, row = self._cell(sample)
         width, height = self._cell_size()
@@ -62,5 +60,4 @@ class GridSampler(GridLayout):
                 f"seed={self._base_seed}]")
 
 
-PLUGIN_NAME = "grid"
 PLUGIN_CLASS = GridSampler

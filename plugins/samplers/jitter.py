@@ -55,8 +55,6 @@ class JitterSampler(GridLayout):
             'sample_count': 16
     """
 
-    PLUGIN_NAME = "jitter"
-
     def _pattern(self, sample, pixel_key):
         col, row = self._cell(sample)
         width, height = self._cell_size()
@@ -68,5 +66,4 @@ class JitterSampler(GridLayout):
                 f"seed={self._base_seed}]")
 
 
-PLUGIN_NAME = "jitter"
 PLUGIN_CLASS = JitterSampler

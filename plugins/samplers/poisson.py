@@ -226,8 +226,6 @@ class PoissonSampler(PatternSampler):
             'sample_count': 64
     """
 
-    PLUGIN_NAME = "poisson"
-
     def _configure(self, spp: int) -> None:
         points, radius = poisson_disk_points(int(spp))
         self.points = points
@@ -253,7 +251,6 @@ class PoissonSampler(PatternSampler):
                 f"relative_radius={self.relative_radius:.3f}, seed={self._base_seed}]")
 
 
-PLUGIN_NAME = "poisson"
 PLUGIN_CLASS = PoissonSampler
 
 

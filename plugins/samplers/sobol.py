@@ -73,7 +73,6 @@ class SobolSampler(SobolBase):
             'sample_count': 16
     """
 
-    PLUGIN_NAME = "sobol"
     _STATE = ("m_pixel_key", "m_sample")
 
     def _configure(self, spp: int) -> None:
@@ -112,5 +111,4 @@ class SobolSampler(SobolBase):
                 f"seed={self._base_seed}]")
 
 
-PLUGIN_NAME = "sobol"
 PLUGIN_CLASS = SobolSampler

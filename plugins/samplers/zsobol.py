@@ -122,7 +122,6 @@ class ZSobolSampler(SobolBase):
             'sample_count': 16
     """
 
-    PLUGIN_NAME = "zsobol"
     _STATE = ("m_index",)
 
     def _round_count(self, spp: int) -> int:
@@ -196,5 +195,4 @@ class ZSobolSampler(SobolBase):
                 f"seed={self._base_seed}, film={'attached' if self._film else 'unknown'}]")
 
 
-PLUGIN_NAME = "zsobol"
 PLUGIN_CLASS = ZSobolSampler

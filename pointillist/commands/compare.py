@@ -6,8 +6,9 @@ FLIP against a high-sample reference, and writes DIR/results.csv, DIR/results.md
 (table, fitted slopes, equal-time and equal-error rankings), DIR/error_vs_time.png,
 DIR/error_vs_spp.png, the renders (EXR files in DIR/renders/) and DIR/report.html, a
 self-contained page (open it from disk in a browser) with the table, interactive
-plots and the renders and error maps side by side. Finished renders are kept:
-running the same command again resumes an interrupted sweep.
+plots and the renders and error maps side by side. Finished renders and their
+scores are kept: running the same command again resumes an interrupted sweep, and
+leaves the report's files alone while what they show is unchanged.
 """
 
 from __future__ import annotations
@@ -39,15 +40,11 @@ def spp_list(text: str) -> list[int]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist compare`` to ``parser``."""
     from pointillist.compare import DEFAULT_METHODS, DEFAULT_SPP  # (cheap: no Mitsuba, no Dask)
+    from pointillist.compare.methods import describe_methods
 
     parser.add_argument("scene", help="Mitsuba scene XML file")
     parser.add_argument("--samplers", default=",".join(DEFAULT_METHODS),
-                        help="comma-separated samplers: grid, jitter, random, poisson, sobol (Owen-scrambled "
-                             "Sobol'), zsobol (pbrt-v4's Morton-ordered Sobol': blue-noise error), and Mitsuba's "
-                             "independent, stratified, multijitter, orthogonal, ldsampler; or adaptive "
-                             "(adaptive super-sampling around the scene's integrator, sweeping its threshold "
-                             "instead of --spp) (default "
-                             f"{','.join(DEFAULT_METHODS)})")
+                        help=f"comma-separated samplers: {describe_methods()} (default {','.join(DEFAULT_METHODS)})")
     parser.add_argument("--spp", type=spp_list, default=list(DEFAULT_SPP),
                         help=f"samples per pixel to sweep (default {','.join(map(str, DEFAULT_SPP))})")
     parser.add_argument("--seeds", type=positive_int, default=1,
@@ -86,8 +83,13 @@ def run(args: argparse.Namespace) -> int:
                            log=lambda line: print(line, flush=True))
     records, paths = result.records, result.paths
     print(f"{len(records)} renders ({result.new} new, {len(records) - result.new} reused) in {result.out_dir}")
-    print("wrote " + ", ".join(str(paths[k]) for k in ("csv", "md", "time_plot", "spp_plot", "spectrum_plot")
-                               if k in paths))
+    report = [k for k in ("csv", "md", "time_plot", "spp_plot", "spectrum_plot") if k in paths]
+    written, kept = [k for k in report if k not in result.kept], [k for k in report if k in result.kept]
+    if written:
+        print("wrote " + ", ".join(str(paths[k]) for k in written))
+    if kept:
+        print("kept " + ", ".join(str(paths[k]) for k in kept) + " (what they show has not changed)")
     if "html" in paths:
-        print(f"report: {paths['html']} ({result.notes[-1]})")  # the page's summary; the other notes were logged
+        kept_page = ", kept: unchanged" if "html" in result.kept else ""
+        print(f"report: {paths['html']} ({result.notes[-1]}{kept_page})")  # the other notes were logged
     return 0

@@ -1,13 +1,10 @@
-"""The report of a comparison: summaries over seeds, fitted slopes, rankings, tables, plots.
+"""The files of a comparison's report: ``results.csv``, ``results.md`` and the plots.
 
-Everything here works on :class:`pointillist.compare.RenderRecord` values (or the
-rows :func:`summarise` makes of them) and renders nothing: :func:`write_report`
-writes ``results.csv``, ``results.md`` (table, fitted log-log slopes, equal-time and
-equal-error rankings), the two log-log plots of error against time and spp, and the
-plot of the error images' radially averaged power spectra (``error_spectrum.png``).
-Times read with three significant digits in a fitting unit (:func:`format_time`);
-renders faster than :data:`TIMING_FLOOR` are too short to time reliably: they are
-marked, and the time slopes and rankings leave them out.
+:func:`write_report` writes, from the sweep's records (:class:`~pointillist.compare.records.RenderRecord`)
+and the numbers :mod:`pointillist.compare.tables` makes of them: ``results.csv`` (every render),
+``results.md`` (table, fitted log-log slopes, equal-time and equal-error rankings), the two
+log-log plots of error against time and spp, and the plot of the error images' radially averaged
+power spectra (``error_spectrum.png``).
 """
 
 from __future__ import annotations
@@ -21,134 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.compare_methods import setting_label, sweep_parameter
+from pointillist.compare.methods import setting_label, sweep_parameter
+from pointillist.compare.tables import (SHORT_MARK, TIMING_FLOOR, equal_error_ranking, equal_time_ranking,
+                                        format_time, results_table, slopes, summarise)
 
-__all__ = ["fit_slope", "summarise", "slopes", "equal_time_ranking", "equal_error_ranking", "report_paths",
-           "write_report", "format_time", "results_table", "mean_spectra", "TIMING_FLOOR"]
+__all__ = ["report_paths", "write_report", "mean_spectra"]
 
-
-#: Renders shorter than this (seconds) are too short to time reliably here: timer resolution,
-#: thread scheduling on a shared machine and fixed per-launch costs weigh as much as the work.
-TIMING_FLOOR = 0.020
-
-
-def format_time(seconds: float, spread: float | None = None) -> str:
-    """``seconds`` with three significant digits in s, ms or µs (and ``± spread`` in that unit).
-
-    Examples
-    --------
-    >>> format_time(0.001234), format_time(0.0123), format_time(1.5), format_time(123.4)
-    ('1.23 ms', '12.3 ms', '1.50 s', '123 s')
-    >>> format_time(0.0000456), format_time(0.9996), format_time(4321.0), format_time(0.0)
-    ('45.6 µs', '1.00 s', '4321 s', '0 s')
-    >>> format_time(0.0123, 0.00045)
-    '12.3 ± 0.45 ms'
-    """
-    if not math.isfinite(seconds):
-        return "nan" if math.isnan(seconds) else str(seconds)
-    if seconds == 0:
-        return "0 s" if spread is None else f"0 ± {format_time(spread)}"
-    for unit, scale in (("s", 1.0), ("ms", 1e-3), ("µs", 1e-6)):
-        if abs(seconds) >= 0.9995 * scale or unit == "µs":
-            break
-    value = seconds / scale
-    text = f"{value:.0f}" if abs(value) >= 999.5 else f"{value:#.3g}".rstrip(".")
-    if spread is not None:
-        text += f" ± {spread / scale:.3g}"
-    return f"{text} {unit}"
-
-
-def fit_slope(x: Sequence[float], y: Sequence[float]) -> float:
-    """Least-squares slope of log(y) against log(x); NaN with fewer than two usable points."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
-    if np.unique(x[ok]).size < 2:
-        return math.nan
-    return float(np.polyfit(np.log(x[ok]), np.log(y[ok]), 1)[0])
-
-def summarise(records: Sequence[Any]) -> list[dict[str, Any]]:
-    """Mean and standard deviation over seeds per (method, value)."""
-    groups: dict[tuple[str, float], list[Any]] = {}
-    for record in records:
-        groups.setdefault((record.method, record.value), []).append(record)
-    rows = []
-    for (method, value), group in groups.items():
-        row: dict[str, Any] = {"method": method, "value": value, "seeds": len(group)}
-        for name in ("spp", "time", "compile", "rmse", "relmse", "flip", "lowfreq"):
-            data = np.array([getattr(r, name) for r in group], float)
-            row[name] = float(data.mean())
-            row[f"{name}_std"] = float(data.std(ddof=1)) if len(data) > 1 else 0.0
-        row["mse"] = float(np.mean([r.rmse ** 2 for r in group]))
-        rows.append(row)
-    return rows
-
-def slopes(rows: Sequence[dict[str, Any]], min_time: float = 0.0) -> dict[str, dict[str, float]]:
-    """Fitted log-log slopes per method: MSE against spp and against time.
-
-    The time slope is fitted over the points whose mean time is at least ``min_time``
-    (e.g. :data:`TIMING_FLOOR`): NaN when fewer than two remain.
-    """
-    result = {}
-    for method in dict.fromkeys(r["method"] for r in rows):
-        mine = [r for r in rows if r["method"] == method]
-        timed = [r for r in mine if r["time"] >= min_time]
-        result[method] = {"mse_vs_spp": fit_slope([r["spp"] for r in mine], [r["mse"] for r in mine]),
-                          "mse_vs_time": fit_slope([r["time"] for r in timed], [r["mse"] for r in timed])}
-    return result
-
-def equal_time_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
-                       metric: str = "mse") -> list[tuple[float, list[tuple[str, float]]]]:
-    """For each time budget, the methods ranked by the lowest ``metric`` reached within it.
-
-    A method reaches, within budget ``T``, the lowest mean error among its sweep
-    points whose mean render time is at most ``T``; methods with no point that fast
-    are left out of that budget. Default budgets: 6 log-spaced times from the
-    fastest to the slowest mean render.
-    """
-    times = np.array([r["time"] for r in rows], float)
-    if budgets is None:
-        lo, hi = float(times.min()), float(times.max())
-        budgets = np.geomspace(lo, hi, 6) if hi > lo else [hi]
-    ranking = []
-    for budget in budgets:
-        best: dict[str, float] = {}
-        for r in rows:
-            if r["time"] <= budget * (1 + 1e-9) and np.isfinite(r[metric]):
-                best[r["method"]] = min(best.get(r["method"], math.inf), r[metric])
-        ranking.append((float(budget), sorted(best.items(), key=lambda kv: kv[1])))
-    return ranking
-
-def equal_error_ranking(rows: Sequence[dict[str, Any]], budgets: Sequence[float] | None = None,
-                        metric: str = "rmse") -> list[tuple[float, list[tuple[str, float, float]]]]:
-    """For each error budget, the methods ranked by the shortest time reaching it.
-
-    The dual of :func:`equal_time_ranking`: a method reaches budget ``E`` with its
-    fastest sweep point whose mean ``metric`` is at most ``E``; methods with no point
-    that accurate are left out of that budget. Each entry is ``(method, value,
-    time)``. Default budgets: the errors of the first method's points in ``rows``
-    (e.g. ``jitter`` at each spp, so a line answers "how long does each method take
-    to get as close as jitter at 16 spp").
-
-    Examples
-    --------
-    >>> rows = [{"method": "a", "value": 4, "time": 1.0, "rmse": 0.2},
-    ...         {"method": "b", "value": 64, "time": 0.5, "rmse": 0.1}]
-    >>> equal_error_ranking(rows)
-    [(0.2, [('b', 64.0, 0.5), ('a', 4.0, 1.0)])]
-    """
-    if budgets is None:
-        first = rows[0]["method"] if rows else None
-        budgets = [r[metric] for r in rows if r["method"] == first]
-    ranking = []
-    for budget in budgets:
-        best: dict[str, tuple[float, float]] = {}
-        for r in rows:
-            if r[metric] <= budget * (1 + 1e-9) and np.isfinite(r["time"]):
-                if r["time"] < best.get(r["method"], (math.inf, math.inf))[1]:
-                    best[r["method"]] = (float(r["value"]), float(r["time"]))
-        ranked = sorted(((m, v, t) for m, (v, t) in best.items()), key=lambda entry: entry[2])
-        ranking.append((float(budget), ranked))
-    return ranking
 
 def _sweeps_spp(method: str) -> bool:
     return sweep_parameter(method) == "spp"
@@ -159,32 +34,6 @@ _CSV_FIELDS = ("method", "value", "seed", "spp", "time", "compile", "trace", "ex
 
 #: Columns of results.csv in seconds: written with three significant digits.
 _CSV_TIMES = ("time", "compile", "trace", "execute", "total", "warm_up", "warm_up_compile")
-
-_SHORT = "*"
-
-def results_table(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
-    """The results table as text: ``(header, cells)``, one list of cells per row of
-    :func:`summarise`: means ± standard deviations over seeds (means alone for one seed);
-    a time under :data:`TIMING_FLOOR` ends in ``*``.
-
-    Examples
-    --------
-    >>> rows = [{"method": "jitter", "value": 4.0, "spp": 4.0, "seeds": 2, "time": 0.0123, "time_std": 0.0004,
-    ...          "compile": 0.5, "rmse": 0.01, "rmse_std": 0.001, "relmse": 2e-3, "flip": 0.05, "lowfreq": 4e-6}]
-    >>> results_table(rows)[1][0]
-    ['jitter', '4 spp', '4', '2', '12.3 ± 0.4 ms *', '500 ms', '0.01000 ± 0.00100', '2.000e-03', '0.0500', '4.000e-06']
-    """
-    header = ["method", "setting", "spp", "seeds", "time", "compile", "RMSE", "relMSE", "FLIP", "low-freq MSE"]
-    cells = []
-    for r in rows:
-        several = r["seeds"] > 1  # one seed: no spread to show
-        time = format_time(r["time"], r["time_std"] if several else None)
-        time += f" {_SHORT}" if r["time"] < TIMING_FLOOR else ""
-        rmse = f"{r['rmse']:.5f}" + (f" ± {r['rmse_std']:.5f}" if several else "")
-        cells.append([r["method"], setting_label(r["method"], r["value"]), f"{r['spp']:.4g}", str(r["seeds"]),
-                      time, format_time(r["compile"]), rmse, f"{r['relmse']:.3e}", f"{r['flip']:.4f}",
-                      f"{r.get('lowfreq', math.nan):.3e}"])
-    return header, cells
 
 def report_paths(out_dir: str | os.PathLike) -> dict[str, Path]:
     """The files :func:`write_report` writes into ``out_dir``, by role (``spectrum_plot`` only with spectra)."""
@@ -203,7 +52,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     ``notes`` (one line each, e.g. why FLIP is NaN) are listed under the table's caption.
     ``spectra``: the radially averaged power spectrum of each render's luminance error
     (:class:`pointillist.imaging.spectrum.RadialSpectrum`) by ``record.exr``, as
-    :func:`pointillist.compare.run_sweep` collects them: the spectrum plot shows their mean
+    :func:`pointillist.compare.sweep.run_sweep` collects them: the spectrum plot shows their mean
     over seeds, one panel per spp.
     """
     from pointillist.imaging.io import atomic_write
@@ -211,22 +60,41 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     paths = report_paths(out_dir)
     if spectra is None:
         del paths["spectrum_plot"]
-
-    def write_csv(tmp: str) -> None:
-        with open(tmp, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
-            writer.writeheader()
-            for record in records:
-                row = record.as_dict()
-                row["exr"] = f"renders/{record.exr}"
-                row.update({name: f"{row[name]:.3g}" for name in _CSV_TIMES})
-                writer.writerow(row)
-
-    atomic_write(paths["csv"], write_csv)
-
+    atomic_write(paths["csv"], lambda tmp: _write_csv(records, tmp))
     rows = summarise(records)
     fitted = slopes(rows, min_time=TIMING_FLOOR)
+    text = "\n".join(_markdown(rows, fitted, scene=scene, reference=reference, title=title, notes=notes)) + "\n"
+    atomic_write(paths["md"], lambda tmp: Path(tmp).write_text(text))
+    _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
+    _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])
+    if spectra is not None:
+        _plot_spectra(records, spectra, paths["spectrum_plot"])
+    return paths
+
+
+def _write_csv(records: Sequence[Any], path: str) -> None:
+    """results.csv: one row per render (its record), times with three significant digits."""
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=_CSV_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for record in records:
+            row = record.as_dict()
+            row["exr"] = f"renders/{record.exr}"
+            row.update({name: f"{row[name]:.3g}" for name in _CSV_TIMES})
+            writer.writerow(row)
+
+
+def _markdown(rows: Sequence[dict[str, Any]], fitted: dict[str, dict[str, float]], *, scene: str, reference: str,
+              title: str | None, notes: Sequence[str]) -> list[str]:
+    """The lines of results.md: the table with its caption and notes, the fitted slopes, the two rankings."""
     timed = [r for r in rows if r["time"] >= TIMING_FLOOR]
+    return (_table_section(rows, timed, scene=scene, reference=reference, title=title, notes=notes)
+            + _slopes_section(rows, fitted, timed) + _equal_time_section(timed) + _equal_error_section(timed))
+
+
+def _table_section(rows: Sequence[dict[str, Any]], timed: Sequence[dict[str, Any]], *, scene: str, reference: str,
+                   title: str | None, notes: Sequence[str]) -> list[str]:
+    """results.md's title, caption, notes and results table, and what its marks mean."""
     floor = format_time(TIMING_FLOOR)
     header, cells = results_table(rows)
     lines = [f"# {title or 'Sampler comparison'}", "",
@@ -243,17 +111,24 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
               "render in a process follows an untimed warm-up render; its times are in results.csv "
               "(warm_up, warm_up_compile)."]
     if len(timed) < len(rows):
-        lines += ["", f"{_SHORT} {len(rows) - len(timed)} of {len(rows)} points took under {floor}: too short to "
+        lines += ["", f"{SHORT_MARK} {len(rows) - len(timed)} of {len(rows)} points took under {floor}: too short to "
                   "time reliably (timer resolution, scheduling and fixed per-launch costs weigh as much as the "
                   "work); the time slopes and the rankings below leave them out"
                   + ("." if timed else ", which leaves nothing to rank: render more pixels or samples "
                      "(e.g. -D res=...) to compare times.")]
-    lines += ["", "## Fitted log-log slopes (least squares over the sweep)", "",
-              "| method | MSE vs spp | MSE vs time |", "|---|---:|---:|"]
+    return lines
+
+
+def _slopes_section(rows: Sequence[dict[str, Any]], fitted: dict[str, dict[str, float]],
+                    timed: Sequence[dict[str, Any]]) -> list[str]:
+    """The fitted log-log slopes of MSE against spp and time, per method."""
+    floor = format_time(TIMING_FLOOR)
+    lines = ["", "## Fitted log-log slopes (least squares over the sweep)", "",
+             "| method | MSE vs spp | MSE vs time |", "|---|---:|---:|"]
     for method, s in fitted.items():
         if _sweeps_spp(method):
             by_time = f"{s['mse_vs_time']:.2f}" if math.isfinite(s["mse_vs_time"]) or len(timed) == len(rows) \
-                else f"– {_SHORT}"
+                else f"– {SHORT_MARK}"
             lines.append(f"| {method} | {s['mse_vs_spp']:.2f} | {by_time} |")
         else:
             lines.append(f"| {method} | – | – |")
@@ -261,18 +136,30 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
         lines += ["", "–: the method sweeps another parameter than spp; a fit over that sweep is not "
                   "a convergence rate."]
     if len(timed) < len(rows):
-        lines += ["", f"MSE vs time: fitted over the points of {floor} or more; – {_SHORT}: fewer than two such "
+        lines += ["", f"MSE vs time: fitted over the points of {floor} or more; – {SHORT_MARK}: fewer than two such "
                   "points."]
-    lines += ["", "## Equal-time ranking (lowest MSE reached within each time budget)", ""]
+    return lines
+
+
+def _equal_time_section(timed: Sequence[dict[str, Any]]) -> list[str]:
+    """The equal-time ranking: the lowest MSE each method reaches within each time budget."""
+    floor = format_time(TIMING_FLOOR)
+    lines = ["", "## Equal-time ranking (lowest MSE reached within each time budget)", ""]
     if timed:
         lines += ["| budget | ranking (MSE) |", "|---:|---|"]
         for budget, ranked in equal_time_ranking(timed):
             text = ", ".join(f"{i + 1}. {m} ({e:.2e})" for i, (m, e) in enumerate(ranked)) or "none"
             lines.append(f"| {format_time(budget)} | {text} |")
     else:
-        lines.append(f"Left out: every render took under {floor} ({_SHORT} above).")
+        lines.append(f"Left out: every render took under {floor} ({SHORT_MARK} above).")
+    return lines
+
+
+def _equal_error_section(timed: Sequence[dict[str, Any]]) -> list[str]:
+    """The equal-error ranking: the fastest render of each method reaching each RMSE of the first method."""
+    floor = format_time(TIMING_FLOOR)
     anchors = [r for r in timed if r["method"] == timed[0]["method"]] if timed else []
-    lines += ["", "## Equal-error ranking (fastest render reaching each RMSE)", ""]
+    lines = ["", "## Equal-error ranking (fastest render reaching each RMSE)", ""]
     if anchors:
         lines += [f"Budgets: the RMSE of each {anchors[0]['method']} point; times relative to that point's.", "",
                   "| RMSE budget (from) | ranking (time) |", "|---|---|"]
@@ -282,14 +169,8 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
             lines.append(f"| {budget:.5f} ({anchor['method']} {setting_label(anchor['method'], anchor['value'])}, "
                          f"{format_time(anchor['time'])}) | {text} |")
     else:
-        lines.append(f"Left out: every render took under {floor} ({_SHORT} above).")
-    atomic_write(paths["md"], lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n"))
-
-    _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
-    _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])
-    if spectra is not None:
-        _plot_spectra(records, spectra, paths["spectrum_plot"])
-    return paths
+        lines.append(f"Left out: every render took under {floor} ({SHORT_MARK} above).")
+    return lines
 
 
 def mean_spectra(records: Sequence[Any], spectra: Mapping[str, Any]) -> dict[tuple[str, float], tuple]:

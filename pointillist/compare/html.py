@@ -1,8 +1,8 @@
 """``report.html``: the comparison as one self-contained page, renders and error maps beside the numbers.
 
-:func:`write_html_report` fills the package's template (``pointillist/report/report.html.in``)
-with the results table (:func:`pointillist.compare_report.results_table`), the page's
-script (``pointillist/report/report.js``, inlined) and the data as JSON: every sweep
+:func:`write_html_report` fills the package's template (``pointillist/compare/page/report.html.in``)
+with the results table (:func:`pointillist.compare.tables.results_table`), the page's
+script (``pointillist/compare/page/*.js``, inlined) and the data as JSON: every sweep
 point's numbers and, for the lowest seed of each point, its render as HDR data
 (float16 RGB, base64), its per-pixel relMSE and HDR-FLIP maps (:func:`pointillist.imaging.metrics.error_maps`,
 float16), an adaptive method's ``sample_count`` layer and the radially averaged power spectrum of
@@ -36,14 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.imaging.metrics import as_rgb, error_maps, error_spectrum
-from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, NYQUIST
-from pointillist.compare_methods import setting_label, sweep_parameter
-from pointillist.compare_report import TIMING_FLOOR, format_time, results_table, slopes, summarise
-from pointillist.render_output import SAMPLE_COUNT_LAYER
+from pointillist.compare.methods import setting_label, sweep_parameter
+from pointillist.compare.tables import TIMING_FLOOR, format_time, results_table, slopes, summarise
 
 __all__ = ["REPORT_NAME", "ReportPage", "write_html_report", "DEFAULT_MAX_BYTES", "encode_half",
-           "colormap_table", "subsample_stride", "template_text"]
+           "colormap_table", "subsample_stride", "template_text", "PAGE_SCRIPTS", "page_script"]
 
 #: The page's file name in the comparison folder.
 REPORT_NAME = "report.html"
@@ -56,6 +53,10 @@ RELMSE_DECADES = 4
 
 #: Page bytes besides the images (table, script, colour tables, JSON keys): reserved in the budget.
 _OVERHEAD = 200_000
+
+#: The page's scripts (``page/``), in the order they run: the time format and sRGB encoding, the
+#: data's decoding, the plots, the image viewer, and the start that connects them.
+PAGE_SCRIPTS = ("format.js", "decode.js", "plots.js", "viewer.js", "main.js")
 
 
 @dataclass(frozen=True)
@@ -81,8 +82,30 @@ class ReportPage:
 
 
 def template_text(name: str) -> str:
-    """The text of a file of the page's package data: ``report.html.in`` or ``report.js``."""
-    return resources.files("pointillist").joinpath("report", name).read_text(encoding="utf-8")
+    """The text of a file of the page's package data (``page/``): ``report.html.in`` or a script."""
+    return resources.files("pointillist.compare").joinpath("page", name).read_text(encoding="utf-8")
+
+
+def page_script(extra: Sequence[str] = ()) -> str:
+    """The page's script: :data:`PAGE_SCRIPTS` in one function scope, after ``PAGE``, the constants
+    they share with Python (the time units of :func:`pointillist.compare.tables.format_time`, the
+    sRGB transfer function of :mod:`pointillist.imaging.colour`), and before ``extra``: scripts
+    that run after them in the same scope (the tests' self-test of the page).
+
+    Examples
+    --------
+    >>> script = page_script()
+    >>> script.startswith('(function () {') and '"time_units": [["s", 1.0], ["ms", 0.001]' in script
+    True
+    """
+    from pointillist.compare.tables import TIME_UNIT_ROUNDING, TIME_UNITS
+    from pointillist.imaging.colour import SRGB_EXPONENT, SRGB_LINEAR_THRESHOLD, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
+
+    constants = {"time_units": TIME_UNITS, "time_unit_rounding": TIME_UNIT_ROUNDING,
+                 "srgb": {"threshold": SRGB_LINEAR_THRESHOLD, "slope": SRGB_SLOPE, "scale": SRGB_SCALE,
+                          "offset": SRGB_OFFSET, "exponent": SRGB_EXPONENT}}
+    parts = [f"var PAGE = {json.dumps(constants)};", *(template_text(name) for name in PAGE_SCRIPTS), *extra]
+    return "(function () {\n\"use strict\";\n" + "\n".join(part.strip("\n") for part in parts) + "\n})();"
 
 
 def encode_half(array: np.ndarray) -> str:
@@ -158,7 +181,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
                       reference: str | os.PathLike, title: str | None = None,
                       max_bytes: int = DEFAULT_MAX_BYTES,
                       maps: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> ReportPage:
-    """Write ``out_dir/report.html`` for the sweep ``records`` (:class:`pointillist.compare.RenderRecord`).
+    """Write ``out_dir/report.html`` for the sweep ``records`` (:class:`~pointillist.compare.records.RenderRecord`).
 
     The renders are read from ``out_dir/renders/<record.exr>`` and compared with the
     EXR ``reference``; records need their errors (``rmse``, ``relmse``, ``flip``).
@@ -178,7 +201,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     max_bytes : int
         Size budget: images are subsampled by a stride when they would not fit.
     maps : mapping, optional
-        Per-pixel error maps already computed (:func:`pointillist.compare.run_sweep`'s
+        Per-pixel error maps already computed (:func:`pointillist.compare.sweep.run_sweep`'s
         ``maps``), by ``record.exr``; those missing are computed (HDR-FLIP costs about
         as much as scoring the render did).
 
@@ -193,6 +216,9 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         ``records`` empty, ``max_bytes`` not positive, or a render of another size than the reference.
     """
     from pointillist.imaging.io import atomic_write, read_exr
+    from pointillist.imaging.metrics import as_rgb, error_maps, error_spectrum
+    from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, NYQUIST
+    from pointillist.render_output import SAMPLE_COUNT_LAYER
 
     if not records:
         raise ValueError("records: expected at least one scored render, got none")
@@ -280,7 +306,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     page = _fill(template_text("report.html.in"), {
         "title": html.escape(data["title"]), "table": "\n".join(table),
         "notes": " ".join(notes), "data": _script_safe(json.dumps(data, separators=(",", ":"), allow_nan=False)),
-        "script": _script_safe(template_text("report.js"))})
+        "script": _script_safe(page_script())})
     path = out / REPORT_NAME
     encoded = page.encode("utf-8")
     atomic_write(path, lambda tmp: Path(tmp).write_bytes(encoded))

@@ -1,11 +1,13 @@
 """The methods ``pointillist compare`` can sweep, and how each is put into a scene.
 
-Methods live in :data:`METHODS` (:func:`register_method`): a sampler method swaps
-the ``<sampler>`` of every ``<sensor>`` of the scene XML (so any user scene works,
-whatever its sampler); an integrator method (e.g. adaptive super-sampling, whose
-sweep parameter is a threshold) swaps the ``<integrator>``. Every Mitsuba sampler
-plugin (``stratified``, ``multijitter``, ``orthogonal``, ``ldsampler``,
-``independent``) is a valid method too.
+Methods live in :data:`METHODS`, built from the plugin registries, not from a list of names:
+every sampler plugin of pointillist (:func:`pointillist.plugins.available`: a new module in
+``plugins/samplers/`` is a new method, under its plugin name) and every sampler of Mitsuba
+(:data:`MITSUBA_SAMPLERS`) is a sampler method, which swaps the ``<sampler>`` of every
+``<sensor>`` of the scene XML (so any user scene works, whatever its sampler); ``random`` is
+Mitsuba's ``independent`` under the course's name (:data:`SAMPLER_ALIASES`). Methods of another
+kind are added with :func:`register_method`: ``adaptive`` (adaptive super-sampling, whose sweep
+parameter is a threshold) swaps the ``<integrator>``.
 """
 
 from __future__ import annotations
@@ -19,13 +21,19 @@ from typing import Any
 from pointillist.errors import UsageError
 
 __all__ = [
-    "Method", "METHODS", "MITSUBA_SAMPLERS", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS", "register_method",
-    "resolve_methods", "sweep_parameter", "setting_label", "configure_scene", "scene_key", "load_configured_scene",
+    "Method", "METHODS", "MITSUBA_SAMPLERS", "SAMPLER_ALIASES", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS",
+    "register_method", "describe_methods", "resolve_methods", "sweep_parameter", "setting_label", "configure_scene",
+    "scene_key", "load_configured_scene",
 ]
 
 
-#: Mitsuba's built-in samplers, all valid peers.
+#: Mitsuba's samplers: the plugins whose type Mitsuba's plugin manager reports as a sampler
+#: (checked against Mitsuba in tests/test_compare.py, which would fail if a version added one).
 MITSUBA_SAMPLERS = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+
+#: Other names of sampler methods: ``random`` is uniform random sampling, Mitsuba's ``independent``.
+SAMPLER_ALIASES = {"random": "independent"}
+
 
 # ----------------------------------------------------------------------------- methods
 @dataclass(frozen=True)
@@ -51,6 +59,9 @@ class Method:
     configure : callable, optional
         ``configure(root, value)`` edits the parsed scene XML in place instead of
         the default for ``kind`` (must be a module-level function: tasks are pickled).
+    summary : str
+        What the method does, in one line (``compare -h``); for a sampler plugin, its own
+        summary (:func:`pointillist.plugins.summary`) is shown instead.
     """
 
     name: str
@@ -59,8 +70,9 @@ class Method:
     parameter: str = "spp"
     values: tuple[float, ...] = ()
     configure: Callable[[ET.Element, float], None] | None = None
+    summary: str = ""
 
-#: Registered methods by name. ``random`` is Mitsuba's ``independent``.
+#: Registered methods by name: every sampler plugin of pointillist and of Mitsuba, the aliases, then the others.
 METHODS: dict[str, Method] = {}
 
 def register_method(method: Method) -> None:
@@ -69,12 +81,17 @@ def register_method(method: Method) -> None:
         raise ValueError(f"method.kind: expected 'sampler' or 'integrator', got {method.kind!r}")
     METHODS[method.name] = method
 
-for _name, _plugin in (("grid", "grid"), ("jitter", "jitter"), ("poisson", "poisson"),
-                       ("random", "independent"), ("sobol", "sobol"), ("zsobol", "zsobol")):
-    register_method(Method(_name, _plugin))
+def _register_samplers() -> None:
+    """Every sampler plugin of pointillist and of Mitsuba as a sampler method of its plugin name,
+    and the :data:`SAMPLER_ALIASES` (the plugin files are read, not imported: no Mitsuba needed)."""
+    from pointillist import plugins
 
-for _name in MITSUBA_SAMPLERS:
-    register_method(Method(_name, _name))
+    for name in (*plugins.available("sampler"), *MITSUBA_SAMPLERS):
+        register_method(Method(name, name))
+    for alias, plugin in SAMPLER_ALIASES.items():
+        register_method(Method(alias, plugin))
+
+_register_samplers()
 
 def _configure_adaptive(root: ET.Element, value: float) -> None:
     """Wrap the scene's ``<integrator>`` in ``<integrator type="adaptive">`` with
@@ -105,7 +122,30 @@ ADAPTIVE_THRESHOLDS = (128.0, 64.0, 32.0, 16.0)
 ADAPTIVE_DEPTHS = {"min_depth": 1, "max_depth": 3}
 
 register_method(Method("adaptive", "adaptive", kind="integrator", parameter="threshold",
-                       values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive))
+                       values=ADAPTIVE_THRESHOLDS, configure=_configure_adaptive,
+                       summary="adaptive super-sampling around the scene's integrator, sweeping its threshold "
+                               "instead of --spp"))
+
+def describe_methods() -> str:
+    """The methods as ``pointillist compare -h`` lists them: pointillist's samplers with what each
+    does, Mitsuba's samplers (and their other names), then the methods of another kind.
+
+    Examples
+    --------
+    >>> text = describe_methods()
+    >>> "grid (samples at the centres of a regular sub-pixel grid)" in text
+    True
+    >>> "Mitsuba's independent (also random)" in text
+    True
+    """
+    from pointillist import plugins
+
+    ours = [f"{name} ({plugins.summary(name)})" for name in plugins.available("sampler")]
+    mitsuba = [name + "".join(f" (also {alias})" for alias, plugin in SAMPLER_ALIASES.items() if plugin == name)
+               for name in MITSUBA_SAMPLERS]
+    others = [f"{method.name} ({method.summary})" for method in METHODS.values() if method.kind != "sampler"]
+    return f"pointillist's {', '.join(ours)}; Mitsuba's {', '.join(mitsuba)}" + \
+        "".join(f"; or {text}" for text in others)
 
 def resolve_methods(names: str | Iterable[str]) -> list[Method]:
     """Parse ``grid,jitter,...`` into methods; UsageError names an unknown one."""
