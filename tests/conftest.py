@@ -23,6 +23,16 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 if signal.getsignal(signal.SIGTERM) == signal.SIG_IGN:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@pytest.fixture(autouse=True)
+def _signals_deliverable():
+    """Before every test, SIGINT and SIGTERM unblocked in the suite's process: importing
+    ``pointillist.console`` (as the docs' consistency check does with every module) blocks them,
+    and every child started afterwards would inherit that mask."""
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    yield
 SCENES = ROOT / "scenes"
 
 
