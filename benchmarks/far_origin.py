@@ -296,7 +296,7 @@ def picture(images, path: Path):
             ax.set_title(title, fontsize=9)
             ax.set_axis_off()
     fig.tight_layout()
-    from pointillist.imaging.io import save_figure
+    from pointillist.files import save_figure
 
     save_figure(fig, path)
 

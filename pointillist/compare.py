@@ -179,7 +179,7 @@ def record_json(record: RenderRecord) -> dict[str, Any]:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
@@ -240,7 +240,7 @@ def _load_scores(path: Path, key: str, *, maps: bool) -> dict[str, Any] | None:
 
 
 def _save_scores(path: Path, key: str, scores: dict[str, Any], *, maps: bool) -> None:
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     spectrum = scores["spectrum"]
     arrays = dict(scores_key=np.array(key), spectrum_frequency=spectrum.frequency, spectrum_power=spectrum.power,
@@ -370,18 +370,17 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     scores have the key of this render file and this reference (and whose spectrum and maps are
     there) is not scored again; with ``progress``, ``log`` is told how many were reused.
     """
-    import sys
-
     from tqdm import tqdm
 
     from pointillist.compare_report import format_time
+    from pointillist.terminal import draws_progress
     from pointillist.imaging.io import read_exr
     from pointillist.imaging.metrics import error_spectrum, image_errors
 
     key = key or scene_key(scene_path, params)
     ref_image = read_exr(reference).image
     records = []
-    terminal = progress and sys.stderr.isatty()
+    terminal = draws_progress(progress)
     bar = tqdm(tasks, desc="compare", unit="render", disable=not terminal)
     for number, task in enumerate(bar, 1):
         signals.check()

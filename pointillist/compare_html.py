@@ -192,7 +192,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     ValueError
         ``records`` empty, ``max_bytes`` not positive, or a render of another size than the reference.
     """
-    from pointillist.imaging.io import atomic_write, read_exr
+    from pointillist.files import atomic_write
+    from pointillist.imaging.io import read_exr
 
     if not records:
         raise ValueError("records: expected at least one scored render, got none")

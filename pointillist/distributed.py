@@ -279,7 +279,7 @@ class ResultCache:
 
     def put(self, key: str, result) -> None:
         """Store ``result`` under ``key`` (atomically)."""
-        from pointillist.imaging.io import atomic_write
+        from pointillist.files import atomic_write
 
         def write(tmp: str) -> None:
             with open(tmp, "wb") as handle:
@@ -324,7 +324,7 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     before stay in the cache); ``distributed.KilledWorker`` if a task kept
     killing its workers.
     """
-    from tqdm.auto import tqdm
+    from pointillist.terminal import progress_bar
 
     tasks = list(tasks)
     if int(retries) != retries or retries < 0:
@@ -342,8 +342,7 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     todo = [i for i, r in enumerate(results) if r is _MISSING]
     if stats is not None:
         stats.update(cached=len(tasks) - len(todo), computed=len(todo))
-    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc,
-               disable=None if progress else True, unit="task", leave=False)  # None: a terminal only
+    bar = progress_bar(total=len(tasks), initial=len(tasks) - len(todo), desc=desc, unit="task", progress=progress)
     try:
         if client is None:
             for i in todo:
