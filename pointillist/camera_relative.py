@@ -54,6 +54,8 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["GAIN", "FAR", "Recentring", "recentre_rule", "sensor_positions", "stated_positions",
            "make_camera_relative", "offset_text"]
 
@@ -289,6 +291,8 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     Examples
     --------
     >>> import numpy as np
+
+from pointillist import checks
     >>> recentre_rule(np.array([0.0, 1.6, 5.5]), np.array([[0, 0.5, 0], [2, 4, 3.0]]))[0]
     False
     >>> recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
@@ -423,8 +427,7 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     """
     if getattr(parsed, "recentring", None) is not None:
         return parsed
-    if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) or sensor < 0:
-        raise ValueError(f"sensor: expected a non-negative integer, got {sensor!r}")
+    sensor = checks.integer(sensor, "sensor", low=0)
     nodes = _graph(parsed.state)
     world, local, volumes = _walk(nodes)
     positions = _sensor_positions(nodes)

@@ -158,10 +158,13 @@ def test_assemble_tiles_places_and_checks():
 
 
 def test_render_task_validates():
-    with pytest.raises(ValueError, match="spp"):
+    with pytest.raises(ValueError, match="^spp: expected an integer in 1..4294967295, got 0$"):
         RenderTask(DEFAULT, spp=0)
-    with pytest.raises(ValueError, match="seed"):
+    with pytest.raises(TypeError, match="^spp: expected an integer, got float 2.5$"):  # pointillist.checks
+        RenderTask(DEFAULT, spp=2.5)
+    with pytest.raises(ValueError, match="^seed: expected an integer in 0..4294967295, got 4294967296$"):
         RenderTask(DEFAULT, seed=2**32)
+    assert type(RenderTask(DEFAULT, spp=np.int64(4), seed=np.uint32(7)).seed) is int  # a plain int in cache keys
     with pytest.raises(ValueError, match="crop"):
         RenderTask(DEFAULT, crop=(0, 0, 0, 4))
     assert RenderTask(DEFAULT, {"b": 1, "a": "x"}).params == (("a", "x"), ("b", "1"))
