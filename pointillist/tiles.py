@@ -114,9 +114,8 @@ def tile_grid(width: int, height: int, rows: int, cols: int, *, x: int = 0, y: i
     >>> [t.crop for t in tile_grid(5, 2, 1, 2)]
     [(0, 0, 2, 2), (2, 0, 3, 2)]
     """
-    for name, value in (("width", width), ("height", height), ("rows", rows), ("cols", cols)):
-        if int(value) != value or value < 1:
-            raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    width, height, rows, cols = (checks.integer(value, name, low=1) for name, value in
+                                 (("width", width), ("height", height), ("rows", rows), ("cols", cols)))
     if rows > height or cols > width:
         raise ValueError(f"tiles: {rows}x{cols} tiles do not fit a {width}x{height} film "
                          "(at most one tile per pixel row/column)")

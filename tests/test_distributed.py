@@ -129,8 +129,23 @@ def test_tile_grid_covers_every_pixel_once():
     assert [t.crop for t in tile_grid(5, 4, 2, 2)] == [(0, 0, 2, 2), (2, 0, 3, 2), (0, 2, 2, 2), (2, 2, 3, 2)]
     with pytest.raises(ValueError, match="do not fit"):
         tile_grid(4, 4, 5, 1)  # more tile rows than pixel rows
-    with pytest.raises(ValueError, match="width"):
+    with pytest.raises(ValueError, match="^width: expected an integer >= 1, got 0$"):
         tile_grid(0, 4, 1, 1)
+    with pytest.raises(TypeError, match="^rows: expected an integer, got float 1.5$"):  # pointillist.checks
+        tile_grid(4, 4, 1.5, 1)
+
+
+def test_cluster_and_task_counts_are_checked_before_any_work():
+    from pointillist.distributed import run_tasks, start_cluster
+
+    with pytest.raises(ValueError, match="^n_workers: expected an integer >= 1, got 0$"):
+        start_cluster(0)
+    with pytest.raises(TypeError, match="^n_workers: expected an integer, got float 2.0$"):
+        start_cluster(2.0)
+    with pytest.raises(ValueError, match="^retries: expected an integer >= 0, got -1$"):
+        run_tasks(abs, [1], retries=-1, progress=False)
+    with pytest.raises(TypeError, match="^retries: expected an integer, got bool True$"):
+        run_tasks(abs, [1], retries=True, progress=False)
 
 
 def test_tile_seed_scheme():

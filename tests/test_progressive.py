@@ -761,3 +761,17 @@ def test_cli_target_error_that_would_run_for_ever_stops_with_one_line(tmp_path, 
     proc = cli("render", "-o", out, *args, timeout=240)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert message in proc.stderr and not out.exists() and not out.with_suffix(".progress.csv").exists()
+
+
+@pytest.mark.parametrize("seconds, error, message", [
+    (0, ValueError, "checkpoint_seconds: expected a number > 0, got 0"),
+    (math.inf, ValueError, "checkpoint_seconds: expected a finite number, got inf"),
+    ("60", TypeError, "checkpoint_seconds: expected a number, got str '60'"),
+])
+def test_render_progressive_checks_checkpoint_seconds_before_any_pass(mi, tmp_path, seconds, error, message):
+    from pointillist.progressive import Budget, render_progressive
+
+    with pytest.raises(error, match="^" + re.escape(message) + "$"):
+        render_progressive(_load(EDGES, res=8), EDGES, Budget(spp=2), checkpoint_seconds=seconds,
+                           checkpoint_file=tmp_path / "x.checkpoint.npz", progress=False)
+    assert list(tmp_path.iterdir()) == []

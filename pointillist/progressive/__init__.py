@@ -259,8 +259,8 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     seed = checks.seed(seed)
     if not isinstance(budget, Budget):
         raise TypeError(f"budget: expected a Budget, got {type(budget).__name__}")
-    if checkpoint_seconds is not None and not (math.isfinite(checkpoint_seconds) and checkpoint_seconds > 0):
-        raise ValueError(f"checkpoint_seconds: expected a positive finite number, got {checkpoint_seconds!r}")
+    if checkpoint_seconds is not None:   # compared in float64, never in a kernel
+        checkpoint_seconds = checks.real(checkpoint_seconds, "checkpoint_seconds", low=0, low_open=True, float32=False)
     if (checkpoint_seconds is not None or resume) and checkpoint_file is None:
         raise ValueError("checkpoint_file: needed with checkpoint_seconds or resume")
     layout = layout or channel_layout(scene, sensor)
