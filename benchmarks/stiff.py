@@ -59,12 +59,36 @@ def _setup():
     return pointillist.setup("llvm_ad_rgb")
 
 
+#: Where the helpers an older whitted.py imports live now: ``{old module: new module}`` (the
+#: property readers left ``plugins/bsdfs/_common.py`` for ``plugins/properties.py``).
+MOVED = {"pointillist.plugins.bsdfs._common": "pointillist.plugins.properties"}
+
+
+def resolve_imports(source: str) -> str:
+    """``source`` with every ``from OLD import names`` of :data:`MOVED` whose names ``OLD`` no longer
+    has importing them from the new module (which must have them all)."""
+    import importlib
+    import re
+
+    def fix(match):
+        module, names = match.group(1), [n.strip() for n in match.group(2).split(",")]
+        if module not in MOVED or all(hasattr(importlib.import_module(module), n) for n in names):
+            return match.group(0)
+        new = importlib.import_module(MOVED[module])
+        missing = [n for n in names if not hasattr(new, n)]
+        if missing:
+            raise ImportError(f"{MOVED[module]} lacks {', '.join(missing)} (imported from {module})")
+        return f"from {MOVED[module]} import {match.group(2)}"
+
+    return re.sub(r"^from ([\w.]+) import ([\w, ]+)$", fix, source, flags=re.M)
+
+
 def register_before(mi, rev: str) -> str:
     """Register whitted.py as of ``rev`` under the name ``whitted_before``; returns the name."""
     source = subprocess.run(["git", "show", f"{rev}:plugins/integrators/whitted.py"], cwd=ROOT,
                             capture_output=True, text=True, check=True).stdout
     path = Path(tempfile.mkdtemp()) / "whitted_before.py"
-    path.write_text(source)
+    path.write_text(resolve_imports(source))
     spec = importlib.util.spec_from_file_location("pointillist_whitted_before", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
