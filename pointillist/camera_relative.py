@@ -291,8 +291,6 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     Examples
     --------
     >>> import numpy as np
-
-from pointillist import checks
     >>> recentre_rule(np.array([0.0, 1.6, 5.5]), np.array([[0, 0.5, 0], [2, 4, 3.0]]))[0]
     False
     >>> recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))

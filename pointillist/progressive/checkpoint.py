@@ -73,6 +73,10 @@ def checksum(arrays: dict[str, Any]) -> str:
 
 
 def save_checkpoint(path: Path, acc: Accumulator, stats: PassStats, history: list, identity: dict) -> None:
+    """Write the checkpoint ``path`` atomically: ``acc``'s arrays, ``stats``, the ``history`` rows
+    (:data:`~pointillist.progressive.stats.HISTORY_COLUMNS`), the render's ``identity``
+    (:func:`scene_fingerprint`), :data:`CHECKPOINT_VERSION` and the :func:`checksum` of it all;
+    :func:`load_checkpoint` reads it back."""
     from pointillist.files import atomic_write
 
     arrays = dict(acc.to_numpy(), history=np.asarray(history, np.float64).reshape(-1, len(HISTORY_COLUMNS)),
