@@ -135,20 +135,18 @@ def main() -> None:
     lines += ["", "**Poisson set generation** (Bridson on the torus, NumPy, not the shipped sets) against one 64 spp "
               "render of edges.xml", "", "| points | generation (ms) | r / r_hex | share of 64 spp render |",
               "|---:|---:|---:|---:|"]
+    from _timing import repeat
+
     from pointillist.plugins.samplers.poisson import (generate_poisson_disk_points, hexagonal_radius,
                                                       toroidal_min_distance)
 
     for n in (16, 64, 256, 1024):
-        gen = []
-        for _ in range(3):
-            t = time.perf_counter()
-            pts, r = generate_poisson_disk_points(n)
-            gen.append(time.perf_counter() - t)
-        g = float(np.median(gen))
+        g = repeat(lambda n=n: generate_poisson_disk_points(n), 3, warmup=False).median
+        pts, r = generate_poisson_disk_points(n)
         share = f"{g / render64:.1%}" if n == 64 else ""
         lines.append(f"| {n} | {g * 1000:.1f} | {toroidal_min_distance(pts) / hexagonal_radius(n):.3f} | {share} |")
-    load = float(np.median([_timed(lambda: poisson_disk_points.__wrapped__(64)) for _ in range(5)]))
-    generate = float(np.median([_timed(lambda: generate_poisson_disk_points(64)) for _ in range(3)]))
+    load = repeat(lambda: poisson_disk_points.__wrapped__(64), 5, warmup=False).median
+    generate = repeat(lambda: generate_poisson_disk_points(64), 3, warmup=False).median
     poisson_share = load / render64
     lines += ["", f"64 points: shipped set read {load * 1000:.1f} ms = {load / render64:.1%} of a 64 spp render "
               f"({render64 * 1000:.0f} ms); generated instead {generate * 1000:.1f} ms = {generate / render64:.1%}."]
@@ -378,12 +376,6 @@ def blue_noise_shares(mi, side: int = 256, seeds: int = 4) -> dict:
             shares = [low_frequency_energy(f(p) - integral) / float(((f(p) - integral) ** 2).mean()) for p in points]
             rows[label].append(float(np.mean(shares)))
     return {"names": names, "rows": rows}
-
-
-def _timed(fn):
-    t = time.perf_counter()
-    fn()
-    return time.perf_counter() - t
 
 
 if __name__ == "__main__":
