@@ -27,7 +27,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -58,19 +57,25 @@ metrics.image_errors = image_errors
 import pointillist.compare as compare
 import pointillist.compare_html as compare_html
 import pointillist.compare_report as compare_report
+import pointillist.scene as scene_module
 if not reuse:
     compare.scores_key = lambda *args: uuid.uuid4().hex
 stages = {{}}
+depth = [0]  # a staged call inside another (a scene load inside a render) counts in the outer stage only
 def staged(module, name, label):
     function = getattr(module, name)
     def wrapper(*args, **kwargs):
         start = time.perf_counter()
+        depth[0] += 1
         try:
             return function(*args, **kwargs)
         finally:
-            stages[label] = stages.get(label, 0.0) + time.perf_counter() - start
+            depth[0] -= 1
+            if depth[0] == 0:
+                stages[label] = stages.get(label, 0.0) + time.perf_counter() - start
     setattr(module, name, wrapper)
-staged(compare, "_scene_size", "scene check (Mitsuba set-up, scene load)")
+staged(scene_module, "parse_scene", "scene check (scene parse and load)")
+staged(scene_module, "instantiate_scene", "scene check (scene parse and load)")
 staged(compare, "render_reference", "reference (cached render)")
 staged(compare, "run_sweep", "renders + scoring")
 staged(compare_report, "write_report", "results.csv/md + 2 plots")
@@ -88,11 +93,11 @@ def _shown(argument: str) -> str:
 
 def run(backend: str, reuse: bool, out: Path) -> tuple[float, float, dict[str, float]]:
     """(wall seconds, seconds in the metrics, seconds per stage) of one `pointillist compare` process."""
+    from _timing import timed
+
     code = RUN.format(root=str(ROOT), args=ARGS)
-    start = time.perf_counter()
-    result = subprocess.run([sys.executable, "-c", code, backend, "1" if reuse else "0", str(out)],
+    result, wall, _ = timed(subprocess.run, [sys.executable, "-c", code, backend, "1" if reuse else "0", str(out)],
                             capture_output=True, text=True, check=True, cwd=ROOT)
-    wall = time.perf_counter() - start
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["status"] == 0, result.stderr
     return wall, report["metrics"], report["stages"]
