@@ -11,6 +11,7 @@ from __future__ import annotations
 import doctest
 import importlib
 import pkgutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -23,6 +24,11 @@ SEPARATE = ("pointillist.plugins", "pointillist.imaging")
 #: Package name -> the sub-packages it leaves to their own entry.
 PACKAGES = {"pointillist": SEPARATE, "pointillist.plugins": ()}
 
+#: Modules never imported here: importing the console script blocks SIGINT and SIGTERM in this
+#: thread for good (its first line, until its ``main`` runs), which every later test's child
+#: processes would inherit; ``__main__`` runs the command line.
+NOT_IMPORTED = ("pointillist.console", "pointillist.__main__")
+
 
 def _modules(package: str) -> list[str]:
     """``package`` and every module below it, but those of the sub-packages it leaves out."""
@@ -30,7 +36,7 @@ def _modules(package: str) -> list[str]:
     root = importlib.import_module(package)
     names = [package] + [info.name for info in pkgutil.walk_packages(root.__path__, package + ".")]
     return [name for name in names if not any(name == s or name.startswith(s + ".") for s in skip)
-            and not name.endswith("__main__")]
+            and name not in NOT_IMPORTED]
 
 
 CASES = [(package, module) for package in PACKAGES for module in _modules(package)]
@@ -60,3 +66,12 @@ def test_every_package_has_examples():
         assert len(modules) > 5, package
         counted = sum(len(t.examples) for m in modules for t in finder.find(importlib.import_module(m), m))
         assert counted > 20, (package, counted)
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
+def test_importing_every_module_leaves_the_signals_deliverable():
+    """Importing the modules of the examples may not block SIGINT/SIGTERM (the console script's
+    import does): the later tests' child processes would inherit the mask and ignore signals."""
+    for _, module in CASES:
+        importlib.import_module(module)
+    assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])

@@ -117,6 +117,8 @@ def test_held_signals_wait_for_the_end_of_the_block():
 
     got = []
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: got.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGTERM])  # whatever ran before
+    got.clear()
     try:
         with signals.held():
             signal.pthread_kill(threading.get_ident(), signal.SIGTERM)  # to this thread, which holds it
@@ -127,4 +129,5 @@ def test_held_signals_wait_for_the_end_of_the_block():
         assert got == [signal.SIGTERM]
         assert signal.SIGTERM not in signal.pthread_sigmask(signal.SIG_BLOCK, [])  # the mask is restored
     finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         signal.signal(signal.SIGTERM, previous)
