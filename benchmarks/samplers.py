@@ -67,13 +67,15 @@ def cornell(mi, sampler, spp, res=128):
 
 
 def sweep(args_list, out):
-    start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "pointillist", "compare", str(ROOT / "scenes/edges.xml"),
-                           "--out", str(out), "--no-progress", *args_list], capture_output=True, text=True,
-                          cwd=ROOT)
+    """Wall seconds of one ``pointillist compare`` process (benchmarks/_timing.py)."""
+    from _timing import timed
+
+    done, wall, _ = timed(subprocess.run, [sys.executable, "-m", "pointillist", "compare",
+                                           str(ROOT / "scenes/edges.xml"), "--out", str(out), "--no-progress",
+                                           *args_list], capture_output=True, text=True, cwd=ROOT)
     if done.returncode:
         raise SystemExit(done.stderr)
-    return time.perf_counter() - start
+    return wall
 
 
 def read_rows(out):
@@ -86,7 +88,8 @@ def main() -> None:
     parser.add_argument("--part", choices=("patterns", "sobol"), default="patterns")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--write", action="store_true", help="--part sobol: write its block into RESULTS.md")
+    parser.add_argument("--write", action="store_true",
+                        help="write the part's block into RESULTS.md (samplers, or samplers_sobol)")
     args = parser.parse_args()
     if args.part == "sobol":
         sobol_part(args)
@@ -101,6 +104,10 @@ def main() -> None:
 
     pointillist.setup()
     from pointillist.plugins.samplers.poisson import poisson_disk_points
+    from _timing import load as load_average
+    from _timing import load_note
+
+    load_before = load_average()
     lines = [f"Machine: {platform.machine()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, libLLVM {dr.detail.llvm_version()}.",
              "Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/samplers.py`", ""]
@@ -198,7 +205,13 @@ def main() -> None:
     shutil.copy(tmp / "seeds" / "error_vs_spp.png", ROOT / "benchmarks" / "samplers_error_vs_spp.png")
     shutil.copy(tmp / "seeds" / "error_vs_time.png", ROOT / "benchmarks" / "samplers_error_vs_time.png")
     shutil.rmtree(tmp, ignore_errors=True)
-    print("\n".join(lines))
+    lines.insert(1, f"Load: {load_note(load_before, load_average())}.")
+    text = "## Samplers (grid, jitter, poisson) and `pointillist compare`\n\n" + "\n".join(lines)
+    print(text)
+    if args.write:
+        from _results import write_block
+
+        print(f"wrote {write_block('samplers', text)}")
 
 
 SOBOL_METHODS = ("random", "jitter", "sobol", "zsobol")
