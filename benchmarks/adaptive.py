@@ -55,6 +55,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--nested", default="direct,path8", help="direct, path8 or both")
     parser.add_argument("--plot", default=str(ROOT / "benchmarks" / "adaptive.png"))
+    parser.add_argument("--write", action="store_true", help="write the section into benchmarks/RESULTS.md")
     args = parser.parse_args(argv)
 
     import pointillist
@@ -68,10 +69,10 @@ def main(argv=None) -> int:
     from pointillist.compare.methods import METHODS, load_configured_scene
     from pointillist.scene import load_scene, timed_render
 
+    from _timing import load, load_note
+
     params = {"res": str(args.res)} if args.res else {}
-    print(f"machine: {platform.machine()}, Python {platform.python_version()}, Mitsuba {mi.__version__}, "
-          f"Dr.Jit {dr.__version__}, scene {Path(args.scene).name}, reference {REFERENCE_SAMPLER} "
-          f"{args.reference_spp} spp, medians of {args.repeats} interleaved rounds")
+    load_before = load()
     suites = {}
     for nested_name in [n.strip() for n in args.nested.split(",") if n.strip()]:
         nested_dict = None if nested_name == "direct" else {"type": "path", "max_depth": 8}
@@ -79,7 +80,22 @@ def main(argv=None) -> int:
                                         REFERENCE_SAMPLER, REFERENCE_SEED, image_errors, load_configured_scene,
                                         load_scene, timed_render)
     _plot(suites, args.plot)
-    print(f"plot: {args.plot}")
+    reproduce = " ".join(["flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/adaptive.py",
+                          *(argv if argv is not None else sys.argv[1:])]).replace(" --write", "")
+    lines = ["## Adaptive super-sampling (issue 9, speed)", "",
+             f"Machine: {platform.machine()}, Python {platform.python_version()}, Mitsuba {mi.__version__}, "
+             f"Dr.Jit {dr.__version__}; {load_note(load_before, load())}. Scene {Path(args.scene).name}, reference "
+             f"{REFERENCE_SAMPLER} {args.reference_spp} spp, medians of {args.repeats} interleaved rounds. "
+             f"Reproduce: `{reproduce}`."]
+    for suite in suites.values():
+        lines += suite["lines"]
+    lines += ["", f"![adaptive]({Path(args.plot).name})"]
+    text = "\n".join(lines)
+    print(text)
+    if args.write:
+        from _results import write_block
+
+        write_block("adaptive", text)
     return 0
 
 
@@ -155,31 +171,33 @@ def run_suite(mi, dr, tqdm, args, params, nested_name, nested_dict, METHODS, REF
     reached = [r for r in adaptive if r["rmse"] <= goal["rmse"]]
     best = min(reached, key=lambda r: r["time"]) if reached else min(adaptive, key=lambda r: r["rmse"])
     nested_label = "direct" if nested_name == "direct" else "path (max_depth 8)"
-    print()
-    print(f"### nested `{nested_label}`")
-    print()
-    print("| method | mean spp | rays / pixel | RMSE | RMSE / jitter-16 | time (median) s | time / jitter-16 | "
+    out = []
+    out.append("")
+    out.append(f"### nested `{nested_label}`")
+    out.append("")
+    out.append("| method | mean spp | rays / pixel | RMSE | RMSE / jitter-16 | time (median) s | time / jitter-16 | "
           "first call s (JIT compile s) | JIT launches | tracing share |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    out.append("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         rays = sum(r["stats"]["rays"]) / (reference.shape[0] * reference.shape[1]) if r["stats"] else r["spp"]
-        print(f"| {r['name']} | {r['spp']:.2f} | {rays:.2f} | {r['rmse']:.5f} | {r['rmse'] / goal['rmse']:.2f} | "
+        out.append(f"| {r['name']} | {r['spp']:.2f} | {rays:.2f} | {r['rmse']:.5f} | {r['rmse'] / goal['rmse']:.2f} | "
               f"{r['time']:.3f} | {r['time'] / goal['time']:.2f} | {r['first']:.2f} ({r['compile']:.2f}) | "
               f"{r['launches']:.0f} | {r['traced'] * 100:.0f}% |")
-    print()
+    out.append("")
     if reached:
-        print(f"goal RMSE <= jitter-16 ({goal['rmse']:.5f}) reached fastest by {best['name']}: RMSE "
+        out.append(f"goal RMSE <= jitter-16 ({goal['rmse']:.5f}) reached fastest by {best['name']}: RMSE "
               f"{best['rmse'] / goal['rmse']:.2f} x, time {best['time']:.3f} s = {best['time'] / goal['time']:.2f} x "
               f"jitter-16's {goal['time']:.3f} s (goal <= 0.50: "
               f"{'met' if best['time'] <= 0.5 * goal['time'] else 'NOT met'})")
     else:
-        print(f"goal NOT met: no adaptive configuration reaches jitter-16's RMSE {goal['rmse']:.5f}; "
+        out.append(f"goal NOT met: no adaptive configuration reaches jitter-16's RMSE {goal['rmse']:.5f}; "
               f"the best, {best['name']}, has {best['rmse']:.5f} in {best['time']:.3f} s")
-    print(f"scheduling overhead of {best['name']}: {(1 - best['traced']) * 100:.0f}% of the render "
+    out.append(f"scheduling overhead of {best['name']}: {(1 - best['traced']) * 100:.0f}% of the render "
           f"(goal < 20%: {'met' if best['traced'] > 0.8 else 'NOT met'}); rays per batch "
           f"{best['stats']['rays']}, squares split per level {best['stats']['squares']}, host reads "
           f"{best['stats']['host_reads']}, JIT launches {best['launches']:.0f}")
-    return {"rows": rows, "goal": goal, "best": best, "label": nested_label, "pixels": reference.shape[:2]}
+    return {"rows": rows, "goal": goal, "best": best, "label": nested_label, "pixels": reference.shape[:2],
+            "lines": out}
 
 
 def _plot(suites, path) -> None:

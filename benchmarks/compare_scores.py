@@ -34,7 +34,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -77,14 +76,18 @@ if not keep:
     outputs.unchanged = lambda *args: None
     records.load_scene_facts = lambda *args: None
 stages = {{}}
+depth = [0]  # a staged call inside another (a scene load inside a render) counts in the outer stage only
 def staged(module, name, label):
     function = getattr(module, name)
     def wrapper(*args, **kwargs):
         start = time.perf_counter()
+        depth[0] += 1
         try:
             return function(*args, **kwargs)
         finally:
-            stages[label] = stages.get(label, 0.0) + time.perf_counter() - start
+            depth[0] -= 1
+            if depth[0] == 0:
+                stages[label] = stages.get(label, 0.0) + time.perf_counter() - start
     setattr(module, name, wrapper)
 staged(compare, "_scene_facts", "scene facts (stored, or the scene built)")
 staged(compare, "render_reference", "reference (cached render)")
@@ -105,11 +108,12 @@ def _shown(argument: str) -> str:
 
 def run(backend: str, reuse: bool, keep: bool, out: Path) -> tuple[float, float, dict[str, float]]:
     """(wall seconds, seconds in the metrics, seconds per stage) of one `pointillist compare` process."""
+    from _timing import timed
+
     code = RUN.format(root=str(ROOT), args=ARGS)
-    start = time.perf_counter()
-    result = subprocess.run([sys.executable, "-c", code, backend, "1" if reuse else "0", "1" if keep else "0",
-                             str(out)], capture_output=True, text=True, check=True, cwd=ROOT)
-    wall = time.perf_counter() - start
+    result, wall, _ = timed(subprocess.run, [sys.executable, "-c", code, backend, "1" if reuse else "0",
+                                             "1" if keep else "0", str(out)],
+                            capture_output=True, text=True, check=True, cwd=ROOT)
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["status"] == 0, result.stderr
     return wall, report["metrics"], report["stages"]

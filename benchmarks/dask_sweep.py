@@ -29,7 +29,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -65,6 +64,7 @@ def main() -> int:
     import distributed
     import drjit as dr
     import mitsuba as _mi  # noqa: F401
+    from _timing import seconds, timed
     from tqdm import tqdm
 
     import pointillist
@@ -81,46 +81,39 @@ def main() -> int:
     rows = {}
     dist = f"workers={args.workers}"
     # ---- cold: the first sweep of this process / of fresh workers
-    start = time.perf_counter()
-    results = run_tasks(render_task, sweep(0), progress=True, desc="serial cold")
-    rows["serial cold"] = (time.perf_counter() - start, results)
+    results, wall, _ = timed(run_tasks, render_task, sweep(0), progress=True, desc="serial cold")
+    rows["serial cold"] = (wall, results)
 
-    start = time.perf_counter()
-    client = start_cluster(args.workers)
-    client.run(lambda: pointillist.setup() and None)  # plugin done: workers ready
-    cluster_start = time.perf_counter() - start
+    def ready_cluster():
+        client = start_cluster(args.workers)
+        client.run(lambda: pointillist.setup() and None)  # plugin done: workers ready
+        return client
+
+    client, cluster_start, _ = timed(ready_cluster)
     threads = client.run(lambda: __import__("drjit").thread_count())
     try:
-        start = time.perf_counter()
-        results = run_tasks(render_task, sweep(0), client=client, progress=True, desc="dask cold")
-        rows[f"{dist} cold"] = (time.perf_counter() - start, results)
+        results, wall, _ = timed(run_tasks, render_task, sweep(0), client=client, progress=True, desc="dask cold")
+        rows[f"{dist} cold"] = (wall, results)
         # ---- warm: repeats alternating serial / distributed (the machine is shared: medians)
         walls = {"serial": [], dist: []}
         per_render = [[] for _ in range(args.renders)]
         for rep in range(args.repeats):
-            start = time.perf_counter()
-            serial_results = run_tasks(render_task, sweep(1000), progress=True, desc=f"serial warm {rep}")
-            walls["serial"].append(time.perf_counter() - start)
-            start = time.perf_counter()
-            dist_results = run_tasks(render_task, sweep(1000), client=client, progress=True,
-                                     desc=f"dask warm {rep}")
-            walls[dist].append(time.perf_counter() - start)
+            serial_results, wall, _ = timed(run_tasks, render_task, sweep(1000), progress=True,
+                                            desc=f"serial warm {rep}")
+            walls["serial"].append(wall)
+            dist_results, wall, _ = timed(run_tasks, render_task, sweep(1000), client=client, progress=True,
+                                          desc=f"dask warm {rep}")
+            walls[dist].append(wall)
             for i, r in enumerate(dist_results):
                 per_render[i].append(r.timing["total"] + r.timing["load"])
         rows["serial warm"] = (statistics.median(walls["serial"]), serial_results)
         rows[f"{dist} warm"] = (statistics.median(walls[dist]), dist_results)
         # Empty-task round trips: throughput (many in flight) and latency (one at a time).
         n = 200
-        start = time.perf_counter()
-        futures = client.map(_noop, range(n), pure=False)
-        client.gather(futures)
-        noop_throughput = (time.perf_counter() - start) / n
-        del futures
+        noop_throughput = seconds(lambda: client.gather(client.map(_noop, range(n), pure=False))) / n
         latencies = []
         for i in tqdm(range(30), desc="latency", leave=False):
-            t = time.perf_counter()
-            client.submit(_noop, i, pure=False).result()
-            latencies.append(time.perf_counter() - t)
+            latencies.append(seconds(lambda i=i: client.submit(_noop, i, pure=False).result()))
         noop_latency = statistics.median(latencies)
     finally:
         cluster = client.cluster

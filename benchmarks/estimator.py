@@ -55,7 +55,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -287,6 +286,8 @@ def cost(repeats):
     import drjit as dr
     import mitsuba as mi
 
+    from _timing import seconds, timed
+
     from pointillist.progressive import MIN_PASSES, Accumulator
 
     rows = []
@@ -299,14 +300,10 @@ def cost(repeats):
         image = mi.TensorXf(rng.gamma(0.5, 1.0, (size, size, 3)).astype(np.float32))
         dr.eval(image)
         est, add = [], []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            nxt = acc.add(image, 4)
-            dr.sync_thread()
-            add.append(time.perf_counter() - start)
-            start = time.perf_counter()
-            nxt.estimate(3)
-            est.append(time.perf_counter() - start)
+        for _ in range(repeats):   # each timed with its arrays evaluated (benchmarks/_timing.py)
+            nxt, seconds_add, _ = timed(acc.add, image, 4)
+            add.append(seconds_add)
+            est.append(seconds(nxt.estimate, 3))
         rows.append(dict(size=size, estimate=statistics.median(est), add=statistics.median(add)))
         print(rows[-1], file=sys.stderr)
     return rows

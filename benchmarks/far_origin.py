@@ -231,6 +231,7 @@ def load_times(folder: Path, rounds: int, first_rounds: int, bar):
     seconds as written / camera-relative, median per-round ratio, interleaved), and the camera-
     relative step's own median time (on copies of the parsed scene)."""
     import mitsuba as mi
+    from _timing import interleaved, seconds
 
     from pointillist.camera_relative import make_camera_relative
     from pointillist.scene import ParsedScene, parse_scene
@@ -249,21 +250,14 @@ def load_times(folder: Path, rounds: int, first_rounds: int, bar):
         for r in range(first_rounds):
             for after in ((False, True) if r % 2 == 0 else (True, False)):
                 first[after].append(_first_load(scene, after))
-        _load(scene, True), _load(scene, False)                     # warm-up (plugins, files)
-        times = {False: [], True: []}
-        for r in range(rounds):
-            for after in ((False, True) if r % 2 == 0 else (True, False)):
-                start = time.perf_counter()
-                loaded = _load(scene, after)
-                times[after].append(time.perf_counter() - start)
-                del loaded
+        # interleaved (benchmarks/_timing.py), after a warm-up load of each (plugins, files)
+        timings = interleaved({after: (lambda after=after: _load(scene, after)) for after in (False, True)}, rounds)
+        times = {after: timings[after].wall for after in (False, True)}
         parsed = parse_scene(scene)
         step = []
         for _ in range(rounds):
             copy = ParsedScene(parsed.path, parsed.params, mi.parser.ParserState(parsed.state), parsed.config)
-            start = time.perf_counter()
-            make_camera_relative(copy)
-            step.append(time.perf_counter() - start)
+            step.append(seconds(make_camera_relative, copy))
         rows.append({"scene": scene.name if scene.parent == ROOT / "scenes" else "issue 30's scene at 1e6 (path)",
                      "first": summary(first), "repeat": summary(times), "step": statistics.median(step),
                      "moved": copy.recentring.moved})
@@ -296,7 +290,7 @@ def picture(images, path: Path):
             ax.set_title(title, fontsize=9)
             ax.set_axis_off()
     fig.tight_layout()
-    from pointillist.imaging.io import save_figure
+    from pointillist.files import save_figure
 
     save_figure(fig, path)
 

@@ -180,7 +180,7 @@ def plot(rows, path: Path) -> None:
     ax.set_title("FLIP: ours vs flip-evaluator (ratio = ours / flip-evaluator)", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    from pointillist.imaging.io import save_figure
+    from pointillist.files import save_figure
 
     save_figure(fig, path)
 

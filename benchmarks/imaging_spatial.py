@@ -14,7 +14,7 @@ would mean a per-call value was baked in as a constant). The first call (JIT com
 run) is measured apart in fresh subprocesses, with the kernel cache ``~/.drjit`` cold
 (HOME pointed at an empty folder) and warm.
 
-Prints Markdown tables (the RESULTS.md block is written by hand from them).
+Prints Markdown tables; ``--write`` puts them into the ``imaging_spatial`` block of RESULTS.md.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ import platform
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +45,8 @@ from tqdm import tqdm  # noqa: E402
 
 from pointillist.imaging import filters as F  # noqa: E402
 from pointillist.imaging.resample import resize  # noqa: E402
+
+from _timing import finish, load, load_note, seconds  # noqa: E402
 
 
 def cases(n: int):
@@ -98,24 +99,19 @@ def cases(n: int):
 
 
 def run_ours(function):
-    result = function()
-    for r in result if isinstance(result, tuple) else (result,):
-        dr.eval(r)
-    dr.sync_thread()
+    """``function()`` with its Dr.Jit results evaluated (benchmarks/_timing.py)."""
+    finish(function())
 
 
 def clock(function) -> float:
-    start = time.perf_counter()
-    function()
-    return time.perf_counter() - start
+    """Wall seconds of ``function()``, its Dr.Jit work finished (benchmarks/_timing.py)."""
+    return seconds(function)
 
 
 def cv_threads(function, threads):
     def run():
         cv2.setNumThreads(threads)
-        start = time.perf_counter()
-        function()
-        return time.perf_counter() - start
+        return seconds(function)
     return run
 
 
@@ -176,6 +172,7 @@ def main():
     parser.add_argument("--peer-repeat", type=int, default=2, help="repeats of scipy / scikit-image")
     parser.add_argument("--only", default="", help="run only cases whose name contains this")
     parser.add_argument("--plot", default="", help="save a bar chart of ours / OpenCV with the goals here")
+    parser.add_argument("--write", action="store_true", help="write the tables into benchmarks/RESULTS.md")
     parser.add_argument("--first-call-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     n = args.size
@@ -183,6 +180,7 @@ def main():
         print(json.dumps(first_calls(n)))
         return
 
+    load_before = load()
     selected = [c for c in cases(n) if args.only in c[0]]
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     rows = []
@@ -212,15 +210,15 @@ def main():
 
     cold = first_calls_subprocess(n, cold=True)
     warm = first_calls_subprocess(n, cold=False)
-    load = os.getloadavg()
-    print(f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, {platform.platform()}; Python "
+    lines = ["## imaging_spatial: correlation, edges, median, resize (issue 6)", ""]
+    lines.append(f"Machine: {platform.machine()}, {os.cpu_count()} cores, {platform.platform()}; Python "
           f"{platform.python_version()}, Dr.Jit {dr.__version__}, LLVM {'.'.join(map(str, dr.detail.llvm_version()))}, "
           f"OpenCV {cv2.__version__}, scipy {scipy.__version__}, scikit-image {skimage.__version__}; image {n}x{n} "
-          f"float32; median of {args.repeat} interleaved repeats; load average at the end "
-          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}.\n")
-    print("| operation | ours ms (min) | OpenCV best ms (min) | scipy ms | skimage ms | ours / OpenCV | goal | "
+          f"float32; median of {args.repeat} interleaved repeats; {load_note(load_before, load())}.")
+    lines.append("")
+    lines.append("| operation | ours ms (min) | OpenCV best ms (min) | scipy ms | skimage ms | ours / OpenCV | goal | "
           "ratio of mins | kernels/call (exec ms) | first call cold / warm ms (JIT compile ms) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    lines.append("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         peer = r["cv"][0] if r["cv"] else r["scipy"]
         ratio = r["ours"] / peer
@@ -232,13 +230,19 @@ def main():
         sk_text = "" if r["skimage"] is None else f"{r['skimage'] * 1e3:.1f}"
         first = (f"{c.get('wall_ms', float('nan')):.0f} ({c.get('compile_ms', float('nan')):.0f}) / "
                  f"{w.get('wall_ms', float('nan')):.0f} ({w.get('compile_ms', float('nan')):.0f})")
-        print(f"| {r['name']} | {r['ours'] * 1e3:.2f} ({r['ours_min'] * 1e3:.2f}) | {cv_text} | {sp_text} | "
+        lines.append(f"| {r['name']} | {r['ours'] * 1e3:.2f} ({r['ours_min'] * 1e3:.2f}) | {cv_text} | {sp_text} | "
               f"{sk_text} | {ratio:.2f}x{'' if r['cv'] else ' (scipy)'} | {goal} | {min_ratio} | "
               f"{r['kernels']} ({r['exec_ms']:.2f}) | {first} |")
     if args.plot:
         plot(rows, args.plot, n)
     total = sum(r["recompiles"] for r in rows)
-    print(f"\nKernels compiled again during steady-state calls: {total} (0 = no per-call recompiles).")
+    lines += ["", f"Kernels compiled again during steady-state calls: {total} (0 = no per-call recompiles)."]
+    text = "\n".join(lines)
+    print(text)
+    if args.write:
+        from _results import write_block
+
+        write_block("imaging_spatial", text)
 
 
 if __name__ == "__main__":

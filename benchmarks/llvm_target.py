@@ -27,7 +27,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -81,17 +80,11 @@ def child(mode: str, repeats: int) -> dict:
         "bicubic resize -> 2560": lambda: resize(gf, (2560, 2560), "bicubic"),
         "bicubic resize -> 1536": lambda: resize(gf, (1536, 1536), "bicubic"),
     }
+    from _timing import repeat
+
     out = {"target": target}
     for name, f in cases.items():
-        dr.eval(f())
-        dr.sync_thread()
-        times = []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            dr.eval(f())
-            dr.sync_thread()
-            times.append(time.perf_counter() - start)
-        out[name] = float(np.median(times)) * 1e3
+        out[name] = repeat(f, repeats).median * 1e3   # after a warm-up call (compilation)
     return out
 
 
@@ -99,13 +92,16 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15, help="timed calls per operation and process")
     parser.add_argument("--rounds", type=int, default=5, help="processes per target (median over them)")
+    parser.add_argument("--write", action="store_true", help="write the table into benchmarks/RESULTS.md")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(child(args.child, args.repeats)))
         return 0
+    from _timing import load, load_note
     from tqdm import tqdm
 
+    load_before = load()
     # Rounds of one fresh process per target, in rotating order (a process's place in the
     # sequence moved its times by up to 1.5x, for kernels without any gather too).
     runs: dict[str, list[dict]] = {mode: [] for mode in TARGETS}
@@ -124,12 +120,21 @@ def main(argv=None) -> int:
                 merged[name] = float(sorted(r[name] for r in runs[mode])[len(runs[mode]) // 2])
         results.append(merged)
     names = [k for k in results[0] if k != "target"]
-    print("| operation | " + " | ".join(r["target"] for r in results) + " |")
-    print("|---|" + "---:|" * len(results))
+    lines = ["## LLVM target: would hardware gathers help the missed imaging goals? (issues 5, 6)", "",
+             f"Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/llvm_target.py --rounds "
+             f"{args.rounds} --repeats {args.repeats}` (each column a fresh process with an empty `~/.drjit`; "
+             f"median over the rounds of each process's median, ms); {load_note(load_before, load())}.", "",
+             "| operation | " + " | ".join(r["target"] for r in results) + " |", "|---|" + "---:|" * len(results)]
     for name in names:
         base = results[0][name]
         cells = [f"{results[0][name]:.2f}"] + [f"{r[name]:.2f} ({r[name] / base:.2f}x)" for r in results[1:]]
-        print(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines)
+    print(text)
+    if args.write:
+        from _results import write_block
+
+        write_block("llvm_target", text)
     return 0
 
 

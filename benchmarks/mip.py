@@ -41,7 +41,6 @@ import json
 import os
 import platform
 import resource
-import statistics
 import subprocess
 import sys
 import time
@@ -55,12 +54,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 def _median(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
+    """Median wall seconds of ``repeats`` calls of ``fn`` (benchmarks/_timing.py; no warm-up call)."""
+    from _timing import repeat
+
+    return repeat(fn, repeats, warmup=False).median
 
 
 def _ours(volume, integrator=None, **view):

@@ -28,7 +28,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -87,12 +86,6 @@ def peer_b(hdr: np.ndarray) -> np.ndarray:
     return np.asarray(Image.fromarray(smooth).convert("1"))
 
 
-def _timed(function, *args) -> float:
-    start = time.perf_counter()
-    function(*args)
-    return time.perf_counter() - start
-
-
 def _kernels(image, chain: str, repeats: int = 5) -> tuple[int, int, list[float]]:
     """(kernels launched, operations, least execution time of each kernel in ms over ``repeats``
     runs) for ``chain`` (after its first run)."""
@@ -114,6 +107,7 @@ def _kernels(image, chain: str, repeats: int = 5) -> tuple[int, int, list[float]
 
 def measure(size: int, rounds: int):
     import cv2
+    from _timing import seconds as _timed
 
     import pointillist.imaging  # noqa: F401  (libLLVM first)
 

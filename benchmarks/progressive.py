@@ -60,20 +60,24 @@ def _setup():
 def _one_render(scene, spp, seed):
     from pointillist.scene import timed_render
 
-    start, cpu = time.perf_counter(), time.process_time()
-    image, timing = timed_render(scene, spp=spp, seed=seed)
-    image.numpy()
-    return time.perf_counter() - start, timing.compile, time.process_time() - cpu
+    from _timing import timed
+
+    (_, timing), wall, cpu = timed(timed_render, scene, spp=spp, seed=seed)
+    return wall, timing.compile, cpu
 
 
 def _progressive(scene, spp, seed):
     from pointillist.progressive import Budget, render_passes
 
-    start, cpu = time.perf_counter(), time.process_time()
-    for image, stats in render_passes(scene, pass_spp=Budget(spp=spp), seed=seed):
-        pass
-    image.numpy()
-    return time.perf_counter() - start, stats, time.process_time() - cpu
+    from _timing import timed
+
+    def passes():
+        for image, stats in render_passes(scene, pass_spp=Budget(spp=spp), seed=seed):
+            pass
+        return image, stats
+
+    (_, stats), wall, cpu = timed(passes)
+    return wall, stats, cpu
 
 
 def overhead(rounds):

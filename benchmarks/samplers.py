@@ -67,13 +67,15 @@ def cornell(mi, sampler, spp, res=128):
 
 
 def sweep(args_list, out):
-    start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "pointillist", "compare", str(ROOT / "scenes/edges.xml"),
-                           "--out", str(out), "--no-progress", *args_list], capture_output=True, text=True,
-                          cwd=ROOT)
+    """Wall seconds of one ``pointillist compare`` process (benchmarks/_timing.py)."""
+    from _timing import timed
+
+    done, wall, _ = timed(subprocess.run, [sys.executable, "-m", "pointillist", "compare",
+                                           str(ROOT / "scenes/edges.xml"), "--out", str(out), "--no-progress",
+                                           *args_list], capture_output=True, text=True, cwd=ROOT)
     if done.returncode:
         raise SystemExit(done.stderr)
-    return time.perf_counter() - start
+    return wall
 
 
 def read_rows(out):
@@ -86,7 +88,8 @@ def main() -> None:
     parser.add_argument("--part", choices=("patterns", "sobol"), default="patterns")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--write", action="store_true", help="--part sobol: write its block into RESULTS.md")
+    parser.add_argument("--write", action="store_true",
+                        help="write the part's block into RESULTS.md (samplers, or samplers_sobol)")
     args = parser.parse_args()
     if args.part == "sobol":
         sobol_part(args)
@@ -101,6 +104,10 @@ def main() -> None:
 
     pointillist.setup()
     from pointillist.plugins.samplers.poisson import poisson_disk_points
+    from _timing import load as load_average
+    from _timing import load_note
+
+    load_before = load_average()
     lines = [f"Machine: {platform.machine()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, libLLVM {dr.detail.llvm_version()}.",
              "Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/samplers.py`", ""]
@@ -135,20 +142,18 @@ def main() -> None:
     lines += ["", "**Poisson set generation** (Bridson on the torus, NumPy, not the shipped sets) against one 64 spp "
               "render of edges.xml", "", "| points | generation (ms) | r / r_hex | share of 64 spp render |",
               "|---:|---:|---:|---:|"]
+    from _timing import repeat
+
     from pointillist.plugins.samplers.poisson import (generate_poisson_disk_points, hexagonal_radius,
                                                       toroidal_min_distance)
 
     for n in (16, 64, 256, 1024):
-        gen = []
-        for _ in range(3):
-            t = time.perf_counter()
-            pts, r = generate_poisson_disk_points(n)
-            gen.append(time.perf_counter() - t)
-        g = float(np.median(gen))
+        g = repeat(lambda n=n: generate_poisson_disk_points(n), 3, warmup=False).median
+        pts, r = generate_poisson_disk_points(n)
         share = f"{g / render64:.1%}" if n == 64 else ""
         lines.append(f"| {n} | {g * 1000:.1f} | {toroidal_min_distance(pts) / hexagonal_radius(n):.3f} | {share} |")
-    load = float(np.median([_timed(lambda: poisson_disk_points.__wrapped__(64)) for _ in range(5)]))
-    generate = float(np.median([_timed(lambda: generate_poisson_disk_points(64)) for _ in range(3)]))
+    load = repeat(lambda: poisson_disk_points.__wrapped__(64), 5, warmup=False).median
+    generate = repeat(lambda: generate_poisson_disk_points(64), 3, warmup=False).median
     poisson_share = load / render64
     lines += ["", f"64 points: shipped set read {load * 1000:.1f} ms = {load / render64:.1%} of a 64 spp render "
               f"({render64 * 1000:.0f} ms); generated instead {generate * 1000:.1f} ms = {generate / render64:.1%}."]
@@ -200,7 +205,13 @@ def main() -> None:
     shutil.copy(tmp / "seeds" / "error_vs_spp.png", ROOT / "benchmarks" / "samplers_error_vs_spp.png")
     shutil.copy(tmp / "seeds" / "error_vs_time.png", ROOT / "benchmarks" / "samplers_error_vs_time.png")
     shutil.rmtree(tmp, ignore_errors=True)
-    print("\n".join(lines))
+    lines.insert(1, f"Load: {load_note(load_before, load_average())}.")
+    text = "## Samplers (grid, jitter, poisson) and `pointillist compare`\n\n" + "\n".join(lines)
+    print(text)
+    if args.write:
+        from _results import write_block
+
+        print(f"wrote {write_block('samplers', text)}")
 
 
 SOBOL_METHODS = ("random", "jitter", "sobol", "zsobol")
@@ -378,12 +389,6 @@ def blue_noise_shares(mi, side: int = 256, seeds: int = 4) -> dict:
             shares = [low_frequency_energy(f(p) - integral) / float(((f(p) - integral) ** 2).mean()) for p in points]
             rows[label].append(float(np.mean(shares)))
     return {"names": names, "rows": rows}
-
-
-def _timed(fn):
-    t = time.perf_counter()
-    fn()
-    return time.perf_counter() - t
 
 
 if __name__ == "__main__":

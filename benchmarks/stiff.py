@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import platform
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -59,12 +58,36 @@ def _setup():
     return pointillist.setup("llvm_ad_rgb")
 
 
+#: Where the helpers an older whitted.py imports live now: ``{old module: new module}`` (the
+#: property readers left ``plugins/bsdfs/_common.py`` for ``plugins/properties.py``).
+MOVED = {"pointillist.plugins.bsdfs._common": "pointillist.plugins.properties"}
+
+
+def resolve_imports(source: str) -> str:
+    """``source`` with every ``from OLD import names`` of :data:`MOVED` whose names ``OLD`` no longer
+    has importing them from the new module (which must have them all)."""
+    import importlib
+    import re
+
+    def fix(match):
+        module, names = match.group(1), [n.strip() for n in match.group(2).split(",")]
+        if module not in MOVED or all(hasattr(importlib.import_module(module), n) for n in names):
+            return match.group(0)
+        new = importlib.import_module(MOVED[module])
+        missing = [n for n in names if not hasattr(new, n)]
+        if missing:
+            raise ImportError(f"{MOVED[module]} lacks {', '.join(missing)} (imported from {module})")
+        return f"from {MOVED[module]} import {match.group(2)}"
+
+    return re.sub(r"^from ([\w.]+) import ([\w, ]+)$", fix, source, flags=re.M)
+
+
 def register_before(mi, rev: str) -> str:
     """Register whitted.py as of ``rev`` under the name ``whitted_before``; returns the name."""
     source = subprocess.run(["git", "show", f"{rev}:plugins/integrators/whitted.py"], cwd=ROOT,
                             capture_output=True, text=True, check=True).stdout
     path = Path(tempfile.mkdtemp()) / "whitted_before.py"
-    path.write_text(source)
+    path.write_text(resolve_imports(source))
     spec = importlib.util.spec_from_file_location("pointillist_whitted_before", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -173,18 +196,6 @@ def instance_table(mi, bar):
 
 
 # ------------------------------------------------------------------ timing
-def _time_render(mi, scene, spp, seed):
-    """Wall time and CPU time (this process, all its threads) of one render until its image is
-    evaluated. On a machine loaded by other jobs the CPU time is the steadier of the two."""
-    import drjit as dr
-
-    wall, cpu = time.perf_counter(), time.process_time()
-    img = mi.render(scene, spp=spp, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
-    return time.perf_counter() - wall, time.process_time() - cpu
-
-
 def _main_kernel_ops(mi, scene, spp):
     """Operation count of the largest kernel of one render (Dr.Jit's kernel history)."""
     import drjit as dr
@@ -202,26 +213,22 @@ def _main_kernel_ops(mi, scene, spp):
 def timing_table(mi, res, spp, rounds, bar):
     """Per scene: medians of wall and CPU time, the median of the per-round ratios and the
     ratio of the minima (now / before), and the first render's wall time (warm-up)."""
+    from _timing import interleaved, ratio
+
     from pointillist.scene import load_scene
 
     rows = []
     for name in ("whitted.xml", "cornell_phong.xml"):
         scenes = {which: load_scene(ROOT / "scenes" / name, {"res": str(res), "integrator": which})
                   for which in ("whitted", "whitted_before")}
-        first = {which: _time_render(mi, s, spp, 0)[0] for which, s in scenes.items()}   # warm-up
-        times = {which: [] for which in scenes}
-        for r in range(rounds):
-            order = list(scenes) if r % 2 == 0 else list(scenes)[::-1]     # alternate who goes first
-            for which in order:
-                times[which].append(_time_render(mi, scenes[which], spp, r + 1))
-            bar.update(1)
-        row = {"scene": name, "first": (first["whitted"], first["whitted_before"]),
+        seeds = {which: iter(range(1, 10**6)) for which in scenes}   # a new seed each render
+        times = interleaved({which: (lambda s=s, which=which: mi.render(s, spp=spp, seed=next(seeds[which])))
+                             for which, s in scenes.items()}, rounds, bar=bar)
+        now, before = times["whitted"], times["whitted_before"]
+        row = {"scene": name, "first": (now.first, before.first),
                "ops": tuple(_main_kernel_ops(mi, scenes[which], spp) for which in ("whitted", "whitted_before"))}
-        for k, label in ((0, "wall"), (1, "cpu")):
-            a = [t[k] for t in times["whitted"]]
-            b = [t[k] for t in times["whitted_before"]]
-            row[label] = (statistics.median(a), statistics.median(b),
-                          statistics.median(x / y for x, y in zip(a, b)), min(a) / min(b))
+        row["wall"] = (now.median, before.median, *ratio(now, before))
+        row["cpu"] = (now.cpu_median, before.cpu_median, *ratio(now, before, "cpu"))
         rows.append(row)
     return rows
 
@@ -268,14 +275,16 @@ def _pct(x):
     return f"{100 * x:.2f} %"
 
 
-def report(args, pixels, camera, instances, timing, offsets, seconds):
+def report(args, pixels, camera, instances, timing, offsets, seconds, loads):
     import drjit as dr
     import mitsuba as mi
+    from _timing import load_note
 
     out = ["## Stiff scenes: scale and distance from the origin (issue 21, `benchmarks/stiff.py`)", "",
            f"Machine: {platform.machine()}, 2 cores shared with other agents' jobs (loaded: timings are "
            f"interleaved ratios), {platform.platform()}; Python {platform.python_version()}, "
-           f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}. Run time {seconds:.0f} s. Reproduce: "
+           f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}; {load_note(*loads)}. Run time {seconds:.0f} s. "
+           "Reproduce: "
            f"`flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/stiff.py --res {args.res} "
            f"--spp {args.spp} --rounds {args.rounds}{f' --offsets --rays {args.rays}' if offsets else ''}`.", ""]
     out += ["Pixels off by more than 1 % (relative; absolute floor 1e-3 of the image mean) against the same "
@@ -339,7 +348,9 @@ def main(argv=None) -> int:
 
     from tqdm import tqdm
 
-    start = time.perf_counter()
+    from _timing import load
+
+    start, load_before = time.perf_counter(), load()
     mi = _setup()
     register_before(mi, args.before)
     n_pix = len(VARIANTS) * len(INTEGRATORS) * (len(SCALES) + 1)
@@ -356,7 +367,7 @@ def main(argv=None) -> int:
     if args.offsets:
         with tqdm(total=len(KINDS) * 15, desc="offsets") as bar:
             offsets = offsets_table(mi, args.rays, bar)
-    text = report(args, pixels, camera, instances, timing, offsets, time.perf_counter() - start)
+    text = report(args, pixels, camera, instances, timing, offsets, time.perf_counter() - start, (load_before, load()))
     print(text)
     if args.write:
         from _results import write_block

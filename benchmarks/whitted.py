@@ -14,8 +14,9 @@ Measures, side by side in one run (ratio = ours / peer, below 1 is faster):
 5. First-render JIT compile time, cold (empty kernel cache: a fresh ``$HOME``, so an empty
    ``~/.drjit``, in a subprocess) and warm (the same cache again).
 
-Steady state is the median of ``--repeats`` renders after one warm-up render, each timed
-until the image is evaluated (``dr.eval`` + ``dr.sync_thread``). Run it under the shared
+Steady state is the median of ``--repeats`` renders after one warm-up render, the two cases of a
+row in interleaved rounds (benchmarks/_timing.py), each timed until the image is evaluated
+(``dr.eval`` + ``dr.sync_thread``). Run it under the shared
 benchmark lock::
 
     flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/whitted.py
@@ -30,11 +31,9 @@ import argparse
 import json
 import os
 import platform
-import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,48 +48,27 @@ def _setup():
     return pointillist.setup("llvm_ad_rgb")
 
 
-def _time_render(mi, scene, spp, seed=0):
-    import drjit as dr
+def _pair(mi, a, b, spp, repeats, bar=None):
+    """Median wall seconds of renders of scenes ``a`` and ``b`` in interleaved rounds (A B, B A, ...),
+    after a warm-up render of each (benchmarks/_timing.py): a load change hits both alike."""
+    from _timing import interleaved
 
-    start = time.perf_counter()
-    img = mi.render(scene, spp=spp, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
-    return time.perf_counter() - start
-
-
-def _steady(mi, scene, spp, repeats, bar=None):
-    _time_render(mi, scene, spp)                       # warm-up: compile, or load from cache
-    times = []
-    for i in range(repeats):
-        times.append(_time_render(mi, scene, spp, seed=i + 1))
-        if bar is not None:
-            bar.update(1)
-    return statistics.median(times)
-
-
-def _interleaved(mi, scenes, spp, repeats, bar=None):
-    """Median times of renders of ``scenes`` taken in interleaved rounds (A B A B ...), after a
-    warm-up render of each: a load change on the machine hits both alike."""
-    for scene in scenes:
-        _time_render(mi, scene, spp)
-    times = [[] for _ in scenes]
-    for i in range(repeats):
-        for k, scene in enumerate(scenes):
-            times[k].append(_time_render(mi, scene, spp, seed=i + 1))
-            if bar is not None:
-                bar.update(1)
-    return [statistics.median(t) for t in times]
+    seeds = iter(range(1, 10**6))
+    times = interleaved({k: (lambda scene=scene: mi.render(scene, spp=spp, seed=next(seeds)))
+                         for k, scene in (("a", a), ("b", b))}, repeats, bar=bar)
+    return times["a"].median, times["b"].median
 
 
 def _kernel_ops(mi, scene, spp):
     """Largest kernel of one render: operation count, and its execution time."""
     import drjit as dr
 
-    _time_render(mi, scene, spp)
+    from _timing import finish
+
+    finish(mi.render(scene, spp=spp))
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()
-    _time_render(mi, scene, spp, seed=7)
+    finish(mi.render(scene, spp=spp, seed=7))
     hist = dr.kernel_history()
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     main = max(hist, key=lambda k: k.get("operation_count", 0))
@@ -168,8 +146,10 @@ def main(argv=None) -> int:
         first_render_child(args.child, args.res, args.spp)
         return 0
 
+    from _timing import load
     from tqdm import tqdm
 
+    load_before = load()
     # 5. compile time first (cold needs a fresh process anyway)
     compile_rows = []
     with tqdm(total=4, desc="first renders (cold/warm cache)") as bar:
@@ -185,11 +165,11 @@ def main(argv=None) -> int:
     import drjit as dr
 
     rows = []
-    with tqdm(total=6 * args.repeats, desc="steady state") as bar:
+    with tqdm(total=3 * args.repeats, desc="steady state (interleaved rounds)") as bar:
         # 1. whitted vs direct doing the same work: diffuse Cornell box, one point light
         w = _point_lit_cornell(mi, {"type": "whitted"}, args.res)
         d = _point_lit_cornell(mi, {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}, args.res)
-        t_w, t_d = _interleaved(mi, (w, d), args.spp, args.repeats, bar)
+        t_w, t_d = _pair(mi, w, d, args.spp, args.repeats, bar)
         rows.append(("whitted vs `direct` (emitter_samples 1, bsdf_samples 0), diffuse Cornell box + one point "
                      f"light {args.res}x{args.res}, {args.spp} spp", t_w, t_d, GOALS["whitted_vs_direct"]))
         # 2. lambert vs diffuse under path
@@ -197,7 +177,7 @@ def main(argv=None) -> int:
         c_l = _cornell(mi, white={"type": "lambert", "reflectance": white})
         c_d = _cornell(mi, white={"type": "diffuse", "reflectance": {"type": "rgb", "value": white}})
         cspp = 4 * args.spp
-        t_l, t_d = _steady(mi, c_l, cspp, args.repeats, bar), _steady(mi, c_d, cspp, args.repeats, bar)
+        t_l, t_d = _pair(mi, c_l, c_d, cspp, args.repeats, bar)
         rows.append((f"`lambert` vs `diffuse` under `path`, Cornell box 128x128, {cspp} spp", t_l, t_d,
                      GOALS["lambert_vs_diffuse"]))
         # 3. phong vs roughplastic under path
@@ -205,7 +185,7 @@ def main(argv=None) -> int:
                                     "diffuse_reflectance": 0.5})
         c_rp = _cornell(mi, sphere={"type": "roughplastic", "alpha": 0.15,
                                     "diffuse_reflectance": {"type": "rgb", "value": 0.5}})
-        t_ph, t_rp = _steady(mi, c_ph, cspp, args.repeats, bar), _steady(mi, c_rp, cspp, args.repeats, bar)
+        t_ph, t_rp = _pair(mi, c_ph, c_rp, cspp, args.repeats, bar)
         rows.append((f"`phong` vs `roughplastic` under `path`, Cornell box + sphere, {cspp} spp", t_ph, t_rp,
                      None))
 
@@ -230,7 +210,8 @@ def main(argv=None) -> int:
     ops_g, ex_g = int(main_g["operation_count"]), float(main_g.get("execution_time", 0.0)) / 1000.0
     ops_gl, ex_gl = _kernel_ops(mi, glass, kspp)
 
-    lines = _markdown(args, rows, compile_rows, (ops_s, ex_s, ops_g, ex_g, ops_gl, ex_gl), kres, kspp)
+    lines = _markdown(args, rows, compile_rows, (ops_s, ex_s, ops_g, ex_g, ops_gl, ex_gl), kres, kspp,
+                      (load_before, load()))
     text = "\n".join(lines)
     print(text)
     if args.write:
@@ -240,18 +221,20 @@ def main(argv=None) -> int:
     return 0
 
 
-def _markdown(args, rows, compile_rows, kernel, kres, kspp):
+def _markdown(args, rows, compile_rows, kernel, kres, kspp, loads):
     import drjit as dr
     import mitsuba as mi
+    from _timing import load_note
 
     ops_s, ex_s, ops_g, ex_g, ops_gl, ex_gl = kernel
     out = ["## whitted integrator, lambert and phong BSDFs", "",
            f"Machine: {platform.machine()}, {os.cpu_count()} cores, {platform.platform()}; Python "
            f"{platform.python_version()}, Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, "
-           f"LLVM {'.'.join(map(str, dr.detail.llvm_version()))}. Reproduce: "
+           f"LLVM {'.'.join(map(str, dr.detail.llvm_version()))}; {load_note(*loads)}. Reproduce: "
            f"`flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/whitted.py --res {args.res} "
            f"--spp {args.spp} --repeats {args.repeats}`.", "",
-           "Steady state (median of repeats, after a warm-up render; image evaluated):", "",
+           "Steady state (median of repeats in interleaved rounds, the two cases of a row alternating, after a "
+            "warm-up render of each; image evaluated):", "",
            "| case | ours (s) | peer (s) | ratio | goal | met |", "|---|---|---|---|---|---|"]
     for name, ours, peer, goal in rows:
         ratio = ours / peer

@@ -17,7 +17,6 @@ PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import tempfile
 from collections.abc import Iterable, Mapping
@@ -28,10 +27,10 @@ import numpy as np
 
 from pointillist import checks
 from pointillist.errors import one_line
+from pointillist.files import atomic_write, check_output_path, mark_input
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
-__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "check_output_path", "unwritable",
-           "atomic_write", "save_figure", "to_8bit"]
+__all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "to_8bit"]
 
 #: EXR header attributes that OpenEXR owns; metadata may not use these names.
 _RESERVED = {
@@ -39,9 +38,6 @@ _RESERVED = {
     "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type", "tiles",
     "name", "version", "chunkCount",
 }
-
-#: (st_dev, st_ino) of every file read by read_exr in this process.
-_INPUTS: set[tuple[int, int]] = set()
 
 
 class EXRImage(NamedTuple):
@@ -60,138 +56,6 @@ class EXRImage(NamedTuple):
     image: np.ndarray
     metadata: dict[str, Any]
     layers: dict[str, np.ndarray]
-
-
-def _file_id(path: str | os.PathLike) -> tuple[int, int] | None:
-    try:
-        stat = os.stat(path)
-    except OSError:
-        return None
-    return stat.st_dev, stat.st_ino
-
-
-def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = (),
-                      name: str = "path") -> Path:
-    """Check that ``path`` may be written: its folder exists and takes new files, it is not an input.
-
-    Writability is probed by creating (and removing) a temporary file in the folder: permission
-    bits do not tell for root, an immutable folder or ``/proc``. Commands call this before their
-    work, so that an output that cannot be written fails first.
-
-    Raises ValueError naming ``name``.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{name}: {path} is a directory, expected a file name")
-    if not path.parent.exists():
-        raise ValueError(f"{name}: folder {path.parent} does not exist")
-    refused = unwritable(path.parent)
-    if refused:
-        raise ValueError(f"{name}: cannot write {path} ({refused})")
-    target = _file_id(path)
-    if target is not None:
-        ids = set(_INPUTS)
-        ids.update(i for i in map(_file_id, inputs) if i is not None)
-        if target in ids:
-            raise ValueError(f"{name}: refusing to overwrite the input file {path}")
-    return path
-
-
-def unwritable(folder: str | os.PathLike) -> str:
-    """Why no new file can be created in ``folder`` ('' when one can): a file is created there and
-    removed, since permission bits do not tell for root, an immutable folder or ``/proc``."""
-    try:
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as error:
-        return str(error.strerror or error)
-    return ""
-
-
-def atomic_write(path: str | os.PathLike, write) -> None:
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``.
-
-    The one way this project writes files: a reader never sees a half-written file, and a
-    failed or interrupted write (an exception, Ctrl-C, SIGTERM, a second signal that ends
-    ``pointillist`` at once) leaves the old file (if any) and no temporary file behind. An
-    ``OSError`` (a folder that cannot be written, a full disk, a target that is a folder) is
-    raised again with ``filename`` the target and a message naming it, never the temporary file.
-    """
-    from pointillist import signals
-
-    path = Path(path)
-    tmp = None
-    try:
-        # SIGINT/SIGTERM are held while the temporary file is created and its name bound, so that a
-        # KeyboardInterrupt (Python's own handler, outside pointillist's signal boundary) always
-        # finds `tmp` set and removes the file; under the boundary, a second signal that ends the
-        # process at once removes it too (the name is registered as the file is made).
-        held = _hold_signals()
-        try:
-            tmp = signals.temporary_file(lambda: _temporary(path))
-        finally:
-            _release_signals(held)
-        try:
-            write(tmp)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except OSError as error:
-            raise _naming(error, path) from None
-    except BaseException:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-        raise
-    finally:
-        if tmp is not None:
-            signals.forget_file(tmp)
-
-
-def _temporary(path: Path) -> str:
-    """A new empty file beside ``path`` (closed); its name."""
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    except OSError as error:
-        raise _naming(error, path) from None
-    os.close(fd)
-    return tmp
-
-
-def _naming(error: OSError, path: Path) -> OSError:
-    """``error`` as the same OSError type naming ``path`` (the target), not a temporary file."""
-    reason = error.strerror or str(error)
-    if error.errno is None:
-        return type(error)(f"cannot write {path}: {reason}")
-    return type(error)(error.errno, f"cannot write {path}: {reason}", str(path))
-
-
-_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
-
-
-def save_figure(fig, path: str | os.PathLike, **savefig: Any) -> None:
-    """Write a matplotlib figure as PNG with :func:`atomic_write`, then close it (also on failure).
-
-    ``savefig`` goes to ``Figure.savefig`` (e.g. ``dpi``)."""
-    import matplotlib.pyplot as plt
-
-    try:
-        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", **savefig))
-    finally:
-        plt.close(fig)
-
-
-def _hold_signals():
-    """Block SIGINT and SIGTERM in this thread (POSIX); returns the mask to restore."""
-    if not hasattr(signal, "pthread_sigmask"):
-        return None
-    return signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-
-
-def _release_signals(mask) -> None:
-    if mask is not None:
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def read_exr(path: str | os.PathLike) -> EXRImage:
@@ -289,7 +153,7 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
             if key in channels:
                 raise ValueError(f"path: {path}: two channels are named {key!r} (part {part.name!r})")
             channels[key] = _framed(path, key, pixels, part.data, frame)
-    _INPUTS.add(_file_id(path))
+    mark_input(path)
 
     def take(*names: str) -> np.ndarray:
         return np.stack([channels.pop(n) for n in names], axis=-1)
@@ -569,7 +433,7 @@ def read_image(path: str | os.PathLike) -> EXRImage:
         raise ValueError(f"path: {path} is too large to read ({one_line(error)})") from None
     except (UnidentifiedImageError, OSError, ValueError) as error:
         raise ValueError(f"path: {path} is not a readable image ({one_line(error)})") from None
-    _INPUTS.add(_file_id(path))
+    mark_input(path)
     return EXRImage(np.ascontiguousarray(pixels), {}, {})
 
 

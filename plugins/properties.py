@@ -120,9 +120,7 @@ def number_property(props, name: str, default: float, *, minimum: float | None =
 def integer_property(props, name: str, default: int, minimum: int, maximum: int, meaning: str = "") -> int:
     """An integer property in ``minimum..maximum``; ``meaning`` (e.g. what 0 does) is
     added to the range error."""
-    value = props[name] if name in props else default
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
+    value = checks.integer(props[name] if name in props else default, name)
     if not minimum <= value <= maximum:
         note = f" ({meaning})" if meaning else ""
         raise ValueError(f"{name}: expected an integer in {minimum}..{maximum}{note}, got {value}")

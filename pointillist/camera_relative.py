@@ -54,6 +54,8 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["GAIN", "FAR", "Recentring", "recentre_rule", "sensor_positions", "stated_positions",
            "make_camera_relative", "offset_text"]
 
@@ -423,8 +425,7 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     """
     if getattr(parsed, "recentring", None) is not None:
         return parsed
-    if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) or sensor < 0:
-        raise ValueError(f"sensor: expected a non-negative integer, got {sensor!r}")
+    sensor = checks.integer(sensor, "sensor", low=0)
     nodes = _graph(parsed.state)
     world, local, volumes = _walk(nodes)
     positions = _sensor_positions(nodes)

@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.errors import UsageError
 
 __all__ = [
@@ -105,8 +106,8 @@ def _worker_plugin_class() -> type:
             name = "pointillist-setup"
 
             def __init__(self, drjit_threads: int | None = None):
-                if drjit_threads is not None and (int(drjit_threads) != drjit_threads or drjit_threads < 1):
-                    raise ValueError(f"drjit_threads: expected an integer >= 1 or None, got {drjit_threads!r}")
+                if drjit_threads is not None:
+                    drjit_threads = checks.integer(drjit_threads, "drjit_threads", low=1)
                 self.drjit_threads = drjit_threads
 
             def setup(self, worker):  # noqa: D401 - Dask API
@@ -142,8 +143,7 @@ def start_cluster(n_workers: int, *, drjit_threads: int | None = None, quiet: bo
     at least 1). Close with ``client.close(); client.cluster.close()`` or use
     :func:`open_client`.
     """
-    if int(n_workers) != n_workers or n_workers < 1:
-        raise ValueError(f"n_workers: expected an integer >= 1, got {n_workers!r}")
+    n_workers = checks.integer(n_workers, "n_workers", low=1)
     _need_dask()
     import logging
 
@@ -279,7 +279,7 @@ class ResultCache:
 
     def put(self, key: str, result) -> None:
         """Store ``result`` under ``key`` (atomically)."""
-        from pointillist.imaging.io import atomic_write
+        from pointillist.files import atomic_write
 
         def write(tmp: str) -> None:
             with open(tmp, "wb") as handle:
@@ -324,11 +324,10 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     before stay in the cache); ``distributed.KilledWorker`` if a task kept
     killing its workers.
     """
-    from tqdm.auto import tqdm
+    from pointillist.terminal import progress_bar
 
     tasks = list(tasks)
-    if int(retries) != retries or retries < 0:
-        raise ValueError(f"retries: expected an integer >= 0, got {retries!r}")
+    retries = checks.integer(retries, "retries", low=0)
     if cache is not None and not isinstance(cache, ResultCache):
         cache = ResultCache(cache)
     if keys is None and (cache is not None or client is not None):
@@ -342,8 +341,7 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     todo = [i for i, r in enumerate(results) if r is _MISSING]
     if stats is not None:
         stats.update(cached=len(tasks) - len(todo), computed=len(todo))
-    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=desc,
-               disable=None if progress else True, unit="task", leave=False)  # None: a terminal only
+    bar = progress_bar(total=len(tasks), initial=len(tasks) - len(todo), desc=desc, unit="task", progress=progress)
     try:
         if client is None:
             for i in todo:

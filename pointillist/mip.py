@@ -411,14 +411,35 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     UsageError
         For an output name or option combination that cannot work, before any work.
     """
-    import importlib.util
+    _check_options(native=native, perspective=perspective, turntable=turntable, neurological=neurological)
+    names, gif, notes = _plan_outputs(volume_path, Path(output), turntable)
+    import pointillist
 
-    from pointillist.plan import Output, Plan
+    pointillist.setup()
+    from pointillist.imaging.window import colormap_lut, parse_window
 
-    out = Path(output)
-    suffix = out.suffix.lower()
-    if suffix not in (".png", ".exr"):
-        raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
+    display = parse_window(window) if window else None
+    lut = colormap_lut(colormap)
+    load = {"frame": frame, "series": series}
+    volume, load_s, caught = _load(volume_path, spacing, load)
+    views = _frame_views(view, azimuth, elevation, turntable)
+    options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
+                   perspective=perspective, precision=precision, background=background, neurological=neurological)
+    remote = None
+    if workers or scheduler:  # every frame a task
+        remote = project_frames(volume_path, views, options, spacing=spacing, load=load, workers=workers,
+                                scheduler=scheduler)
+    integrator, frames, project_s, display = _project_and_write(
+        volume, volume_path, views, names, options, remote, display, lut, progress=progress, labels=labels)
+    if gif is not None:
+        _write_gif(gif, frames, volume_path)
+    texture = integrator.texture_info() if remote is None else remote[0]["texture"]
+    return MipResult(outputs=names, gif=gif, volume=volume, texture=texture, window=display,
+                     load_seconds=load_s, project_seconds=project_s, notes=notes, warnings=caught)
+
+
+def _check_options(*, native: bool, perspective: float | None, turntable: int | None, neurological: bool) -> None:
+    """UsageError for an option combination that cannot work (before any work)."""
     if native and perspective:
         raise UsageError("--native-size needs an orthographic view (drop --perspective)")
     try:
@@ -430,48 +451,55 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
     if turntable and neurological:
         raise UsageError("--neurological is for still views: a turntable passes through lateral views, which have "
                          "no left-right axis to mirror, so its frames would flip there")
-    # The plan, before any work: every frame and the GIF writable, none of them the volume (or
-    # inside the folder of a DICOM series).
+
+
+def _plan_outputs(volume_path, out: Path, turntable: int | None) -> tuple[list[Path], Path | None, list[str]]:
+    """The files to write (``OUT`` or the turntable's ``OUT_000...``, and its GIF), checked by the plan
+    before any work: a ``.png`` or ``.exr`` name, writable, none of them the volume nor inside the
+    folder of a DICOM series. Returns ``(frames, gif or None, notes)``."""
+    import importlib.util
+
+    from pointillist.plan import Output, Plan
+
+    suffixes = (".png", ".exr")
     names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
              else [out])
-    gif = out.with_suffix(".gif") if turntable and suffix == ".png" else None
+    gif = out.with_suffix(".gif") if turntable and out.suffix.lower() == ".png" else None
     notes = []
     if gif is not None and importlib.util.find_spec("imageio") is None:
         gif = None
         notes.append("imageio not installed: no GIF written")
     Plan(inputs=[Path(volume_path)],
-         outputs=[Output(name, "--output") for name in names] + ([Output(gif, "--output (GIF)")] if gif else [])
-         ).check()
-    import pointillist
+         outputs=[Output(name, "--output", suffixes=suffixes) for name in names]
+         + ([Output(gif, "--output (GIF)")] if gif else [])).check()
+    return names, gif, notes
 
-    pointillist.setup()
-    from tqdm import tqdm
 
+def _load(volume_path, spacing, load: dict) -> tuple[Any, float, list[str]]:
+    """Load the volume; returns it, the seconds taken and the warnings its reader gave (one line each:
+    e.g. an orientation the file lacked and what was assumed)."""
     from pointillist.imaging.volumes import load_volume
-    from pointillist.imaging.window import colormap_lut, parse_window
 
-    display = parse_window(window) if window else None
-    lut = colormap_lut(colormap)
     start = time.perf_counter()
-    load = {"frame": frame, "series": series}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         volume = load_volume(volume_path, spacing=list(spacing) if spacing else None, **load)
     signals.check()
-    load_s = time.perf_counter() - start
-    views = _frame_views(view, azimuth, elevation, turntable)
-    options = dict(size=size, native=native, mode=mode, interpolation=interpolation, step=step,
-                   perspective=perspective, precision=precision, background=background, neurological=neurological)
-    integrator = None
-    frames = []
-    project_s = 0.0
-    remote = None
-    if workers or scheduler:  # every frame a task
-        remote = project_frames(volume_path, views, options, spacing=spacing, load=load, workers=workers,
-                                scheduler=scheduler)
-        project_s = sum(r["seconds"] for r in remote)
-    for k, (frame_view, name) in enumerate(tqdm(list(zip(views, names)), desc="mip", unit="frame",
-                                                disable=True if len(names) == 1 or not progress else None)):
+    return volume, time.perf_counter() - start, [str(w.message) for w in caught]
+
+
+def _project_and_write(volume, volume_path, views: list[dict], names: list[Path], options: dict,
+                       remote: list[dict] | None, display, lut, *, progress: bool, labels: bool):
+    """Project each view (or take its frame from ``remote``, the tasks' results) and write it.
+
+    ``display``: the window ``(level, width)``, None for the first frame's value range (then used for
+    every frame). Returns ``(integrator, 8-bit PNG frames, projection seconds, window)``."""
+    from pointillist.terminal import progress_bar
+
+    integrator, frames = None, []
+    project_s = sum(r["seconds"] for r in remote) if remote is not None else 0.0
+    for k, (frame_view, name) in enumerate(progress_bar(list(zip(views, names)), progress=progress and len(names) > 1,
+                                                        desc="mip", unit="frame")):
         signals.check()
         if remote is not None:
             image = remote[k]["image"]
@@ -483,19 +511,20 @@ def render_mip(volume_path: str | os.PathLike, output: str | os.PathLike, *, vie
             finite = image[np.isfinite(image)]
             lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
             display = ((lo + hi) / 2, hi - lo if hi > lo else 1.0)
-        frames.append(_write_frame(name, image, volume, volume_path, display, lut, frame_view, mode=mode,
-                                   interpolation=interpolation, step=step, neurological=neurological,
-                                   labels=labels))
-    if gif is not None:
-        import imageio.v2 as imageio
+        frames.append(_write_frame(name, image, volume, volume_path, display, lut, frame_view, mode=options["mode"],
+                                   interpolation=options["interpolation"], step=options["step"],
+                                   neurological=options["neurological"], labels=labels))
+    return integrator, frames, project_s, display
 
-        from pointillist.imaging.io import atomic_write
 
-        atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
-    texture = integrator.texture_info() if remote is None else remote[0]["texture"]
-    return MipResult(outputs=names, gif=gif, volume=volume, texture=texture, window=display,
-                     load_seconds=load_s, project_seconds=project_s, notes=notes,
-                     warnings=[str(w.message) for w in caught])
+def _write_gif(gif: Path, frames: list[np.ndarray], volume_path) -> None:
+    """The turntable's animated GIF (25 frames a second, looping)."""
+    import imageio.v2 as imageio
+
+    from pointillist.files import atomic_write, check_output_path
+
+    check_output_path(gif, [volume_path], "--output (GIF)")
+    atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))
 
 
 def _write_frame(path: Path, image: np.ndarray, volume, volume_path, window, lut, view, *, mode: str,

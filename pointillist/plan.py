@@ -33,6 +33,7 @@ from pathlib import Path
 
 from pointillist.distributed import file_digest
 from pointillist.errors import UsageError
+from pointillist.files import check_output_path, existing_ancestor, unwritable
 
 __all__ = ["Output", "Plan", "scene_inputs", "inputs_digest", "scene_digest"]
 
@@ -46,35 +47,19 @@ class Output:
 
     ``what`` names it in messages (the option, e.g. ``--output``, or ``PNG preview``);
     ``folder``: a folder (made when missing, with its parents); ``make_parent``: the file's folder
-    may be made (the default ``out/``), else it must exist.
+    may be made (the default ``out/``), else it must exist; ``suffixes``: the file name's suffixes
+    the command can write (lower case, e.g. ``(".png", ".exr")``; any when empty).
     """
 
     path: Path
     what: str
     folder: bool = False
     make_parent: bool = False
-
-
-def _file_id(path: Path) -> tuple[int, int] | None:
-    try:
-        stat = os.stat(path)
-    except OSError:
-        return None
-    return stat.st_dev, stat.st_ino
-
-
-def _existing_ancestor(path: Path) -> Path:
-    """The nearest folder at or above ``path`` that exists (``path`` itself when it does)."""
-    current = Path(os.path.abspath(path))
-    while not current.exists() and current != current.parent:
-        current = current.parent
-    return current
+    suffixes: tuple[str, ...] = ()
 
 
 def _probe(folder: Path, what: str, target: Path) -> None:
     """UsageError unless a new file can be created in ``folder``."""
-    from pointillist.imaging.io import unwritable
-
     refused = unwritable(folder)
     if refused:
         raise UsageError(f"{what}: cannot write {target} ({refused})")
@@ -91,6 +76,10 @@ class Plan:
     Traceback (most recent call last):
     ...
     pointillist.errors.UsageError: PNG preview: a.exr is also the --output file
+    >>> Plan(outputs=[Output(Path("a.jpg"), "--output", suffixes=(".png", ".exr"))]).check()
+    Traceback (most recent call last):
+    ...
+    pointillist.errors.UsageError: --output: expected a .png or .exr file name, got a.jpg
     """
 
     inputs: list[Path] = field(default_factory=list)
@@ -112,42 +101,20 @@ class Plan:
         raise KeyError(what)
 
     def check(self) -> None:
-        """UsageError for the first output that cannot be written, is an input or repeats another."""
-        files = {i: p for p in self.inputs if (i := _file_id(p)) is not None and not p.is_dir()}
-        folders = [Path(os.path.realpath(p)) for p in self.inputs if p.is_dir()]
+        """UsageError for the first output that cannot be written, is an input or repeats another
+        (:func:`pointillist.files.check_output_path` for each file)."""
         seen: dict[str, Output] = {}
         for out in self.outputs:
-            path = out.path
-            real = Path(os.path.realpath(path))
-            key = str(real)
+            key = os.path.realpath(out.path)
             if key in seen:
-                raise UsageError(f"{out.what}: {path} is also the {seen[key].what} file")
+                raise UsageError(f"{out.what}: {out.path} is also the {seen[key].what} file")
             seen[key] = out
+            if out.suffixes and out.path.suffix.lower() not in out.suffixes:
+                raise UsageError(f"{out.what}: expected a {' or '.join(out.suffixes)} file name, got {out.path}")
             if out.folder:
                 self._check_folder(out)
-                continue
-            if path.is_dir():
-                raise UsageError(f"{out.what}: {path} is a folder, expected a file name")
-            if path.exists() and not path.is_file():  # a device, a FIFO, a socket: never replaced
-                raise UsageError(f"{out.what}: {path} exists and is not a regular file")
-            ident = _file_id(path)
-            if ident is not None and ident in files:
-                raise UsageError(f"{out.what}: refusing to overwrite the input file {path}")
-            for folder in folders:
-                if folder in real.parents:
-                    raise UsageError(f"{out.what}: {path} lies in the input folder {folder}")
-            parent = path.parent
-            if not parent.is_dir():
-                if parent.exists():
-                    raise UsageError(f"{out.what}: {parent} is not a folder")
-                if not out.make_parent:
-                    raise UsageError(f"{out.what}: folder {parent} does not exist")
-                ancestor = _existing_ancestor(parent)
-                if not ancestor.is_dir():
-                    raise UsageError(f"{out.what}: {ancestor} is not a folder")
-                _probe(ancestor, out.what, path)
             else:
-                _probe(parent, out.what, path)
+                check_output_path(out.path, self.inputs, out.what, make_parent=out.make_parent)
 
     def _check_folder(self, out: Output) -> None:
         path = out.path
@@ -156,7 +123,7 @@ class Plan:
                 raise UsageError(f"{out.what}: {path} exists and is not a folder")
             _probe(path, out.what, path)
             return
-        ancestor = _existing_ancestor(path)
+        ancestor = existing_ancestor(path)
         if not ancestor.is_dir():
             raise UsageError(f"{out.what}: cannot create the folder {path} ({ancestor} is not a folder)")
         _probe(ancestor, out.what, path)

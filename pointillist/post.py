@@ -165,21 +165,17 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     text = ";".join([steps, *step] + ([f"dither:{dither.replace(':', ',', 1)}"] if dither else []))
     pipeline = parse_steps(text)
     source, out = Path(source), Path(output)
-    if out.suffix.lower() not in (".png", ".exr"):
-        raise UsageError(f"--output: expected a .png or .exr file name, got {out}")
     if not source.is_file():
         raise UsageError(f"input: no such file: {source}")
     # The plan, before any work: the input image and any file a step reads (a table), the
     # output and the plot.
     inputs = [source] + [Path(value) for _, kwargs in pipeline for value in kwargs.values()
                          if isinstance(value, str) and Path(value).is_file()]
-    outputs = [Output(out, "--output")]
+    outputs = [Output(out, "--output", suffixes=(".png", ".exr"))]
     plot_path = None
     if plot or plot_file:
         plot_path = Path(plot_file) if plot_file else out.with_name(out.stem + "_histogram.png")
-        if plot_path.suffix.lower() != ".png":
-            raise UsageError(f"--plot-file: expected a .png file name, got {plot_path}")
-        outputs.append(Output(plot_path, "--plot-file" if plot_file else "--plot"))
+        outputs.append(Output(plot_path, "--plot-file" if plot_file else "--plot", suffixes=(".png",)))
     Plan(inputs=inputs, outputs=outputs).check()
 
     from pointillist.imaging.io import read_image, write_exr, write_png
@@ -217,9 +213,8 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.imaging.io import check_output_path, save_figure
+    from pointillist.files import save_figure
 
-    path = check_output_path(path, inputs, name="--plot")
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
     for ax, data, label in ((axes[0], before, "before"), (axes[1], after, "after")):
         values = np.asarray(data, dtype=np.float64)
@@ -244,5 +239,5 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
         ax.set_ylabel("pixels")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    save_figure(fig, path, dpi=100)
+    save_figure(fig, path, inputs=inputs, name="--plot", dpi=100)
 

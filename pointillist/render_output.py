@@ -1,7 +1,7 @@
 """Writing a render: the EXR (extra film channels as layers, metadata in the header), the sRGB
 PNG preview, and the heat map of a per-pixel sample count (the ``adaptive`` integrator's AOV).
 
-Every file is written atomically and never over an input (:mod:`pointillist.imaging.io`).
+Every file is written atomically and never over an input (:mod:`pointillist.files`).
 """
 
 from __future__ import annotations
@@ -21,11 +21,9 @@ SAMPLE_COUNT_LAYER = "sample_count"
 
 def output_path(scene: str, output: str | None) -> Path:
     """The EXR path to write: ``output`` or ``out/<scene stem>.exr`` (the folder ``out`` is made only
-    when the work starts: :meth:`pointillist.plan.Plan.writing`)."""
-    path = Path(output) if output else Path("out") / (Path(scene).stem + ".exr")
-    if path.suffix.lower() != ".exr":
-        raise UsageError(f"--output: expected a .exr file name, got {path}")
-    return path
+    when the work starts: :meth:`pointillist.plan.Plan.writing`; the plan of :func:`render_outputs`
+    checks the name)."""
+    return Path(output) if output else Path("out") / (Path(scene).stem + ".exr")
 
 
 def render_outputs(out: Path, *, png: bool, layout=None, default: bool = False) -> list:
@@ -34,7 +32,7 @@ def render_outputs(out: Path, *, png: bool, layout=None, default: bool = False) 
     ``sample_count`` layer). ``default``: ``out`` is the default name, whose folder may be made."""
     from pointillist.plan import Output
 
-    outputs = [Output(out, "--output", make_parent=default)]
+    outputs = [Output(out, "--output", make_parent=default, suffixes=(".exr",))]
     if png:
         outputs.append(Output(out.with_suffix(".png"), "--png (preview)", make_parent=default))
         if layout is not None and SAMPLE_COUNT_LAYER in layout.layer_names():
@@ -91,9 +89,8 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.imaging.io import check_output_path, save_figure
+    from pointillist.files import save_figure
 
-    path = check_output_path(path, inputs, name="sample-count heat map")
     counts = np.asarray(counts, dtype=np.float64)
     height, width = counts.shape
     scale = 6.0 / max(height, width)
@@ -104,5 +101,5 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     ax.set_title(f"samples per pixel: mean {counts.mean():.1f}, max {counts.max():.0f}", fontsize=9)
     ax.set_axis_off()
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, inputs=inputs, name="sample-count heat map")
 

@@ -10,12 +10,13 @@ from pathlib import Path
 from typing import Any
 
 from pointillist import signals
+from pointillist.checks import UINT32_MAX
 from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
            "check_scene_file", "resolving_from", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
-           "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count", "MAX_SAMPLES"]
+           "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -204,14 +205,13 @@ class RenderTiming:
         return asdict(self)
 
 
-#: Samples one render may take (width x height x spp): one wavefront of 32-bit lanes. Above it
-#: Mitsuba splits the render into passes, which fails (spp not a multiple of the pass count,
-#: Python integrators) or silently breaks per-lane samplers (NOTES-mitsuba.md).
-MAX_SAMPLES = 2**32 - 1
-
-
 def check_sample_count(width: int, height: int, spp: int) -> None:
-    """UsageError unless ``width x height`` has pixels and ``width x height x spp <= MAX_SAMPLES``.
+    """UsageError unless ``width x height`` has pixels and ``width x height x spp`` is at most
+    :data:`pointillist.checks.UINT32_MAX`.
+
+    That many samples make one wavefront of 32-bit lanes. Above it Mitsuba splits the render into
+    passes, which fails (an spp that is not a multiple of the pass count, Python integrators) or
+    silently breaks samplers that key their stream on the lane index (measured with Mitsuba 3.9).
 
     Examples
     --------
@@ -227,7 +227,7 @@ def check_sample_count(width: int, height: int, spp: int) -> None:
     if spp < 1:
         raise UsageError(f"spp: expected a positive integer, got {spp}")
     total = int(width) * int(height) * int(spp)
-    if total > MAX_SAMPLES:
+    if total > UINT32_MAX:
         raise UsageError(f"spp: {width}x{height} pixels at {spp} spp is {total} samples, more than one render "
                          "takes (2^32 - 1); use fewer spp, or --tiles to split the film")
 
@@ -237,7 +237,7 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
 
     Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
     time of every JIT kernel launched by this render). Raises UsageError before
-    rendering for a film without pixels or more than :data:`MAX_SAMPLES` samples
+    rendering for a film without pixels or more than 2^32 - 1 samples
     (:func:`check_sample_count`), or what the sampler's ``check_render(spp)`` refuses.
     """
     import drjit as dr

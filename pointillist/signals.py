@@ -40,7 +40,7 @@ from pointillist.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
            "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS",
-           "finish"]
+           "held", "finish"]
 
 #: The signals the boundary handles.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -304,6 +304,26 @@ def forget_file(name: str | os.PathLike) -> None:
             state.temporary.discard(str(name))
 
 
+def _block():
+    """Block SIGINT and SIGTERM in this thread (POSIX: they stay pending); the mask to restore, or None."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+
+
+@contextlib.contextmanager
+def held() -> Iterator[None]:
+    """SIGINT and SIGTERM held pending in this thread for the block, delivered after it (POSIX; elsewhere
+    nothing changes): a few steps that a signal may not cut in two, such as making a temporary file and
+    binding its name."""
+    mask = _block()
+    try:
+        yield
+    finally:
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
 def finish(exit_status: int) -> int:
     """The final exit status: a signal received before the process ends makes a success 130 / 143.
 
@@ -311,8 +331,7 @@ def finish(exit_status: int) -> int:
     signal lands between this decision and the exit; prints the one line when it changes the
     status (an error line already printed stays the only one).
     """
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    _block()
     signum = received()
     if signum is not None and exit_status == 0:
         _print_line(f"{_STATE.command if _STATE is not None else 'pointillist'}: {message(signum)}")

@@ -11,7 +11,7 @@
 Seeds of tiles
 --------------
 Tile ``i`` of ``K = rows * cols`` tiles renders with seed
-``(seed * K + i) mod 2**32`` (:func:`tile_seed`): distinct for every tile of
+``(seed * K + i) mod 2^32`` (:func:`tile_seed`): distinct for every tile of
 one render and for every base seed of one tiling (until the 32-bit wrap), so
 tiles never share a random stream. A ``1x1`` tiling uses ``seed`` itself and
 equals the untiled render. Mitsuba's samplers key their stream on the
@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import checks
 from pointillist.distributed import DEFAULT_RETRIES, ResultCache, run_tasks, setup_process
 from pointillist.errors import UsageError
 
@@ -113,9 +114,8 @@ def tile_grid(width: int, height: int, rows: int, cols: int, *, x: int = 0, y: i
     >>> [t.crop for t in tile_grid(5, 2, 1, 2)]
     [(0, 0, 2, 2), (2, 0, 3, 2)]
     """
-    for name, value in (("width", width), ("height", height), ("rows", rows), ("cols", cols)):
-        if int(value) != value or value < 1:
-            raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    width, height, rows, cols = (checks.integer(value, name, low=1) for name, value in
+                                 (("width", width), ("height", height), ("rows", rows), ("cols", cols)))
     if rows > height or cols > width:
         raise ValueError(f"tiles: {rows}x{cols} tiles do not fit a {width}x{height} film "
                          "(at most one tile per pixel row/column)")
@@ -125,7 +125,7 @@ def tile_grid(width: int, height: int, rows: int, cols: int, *, x: int = 0, y: i
             for i in range(rows) for j in range(cols)]
 
 def tile_seed(seed: int, index: int, count: int) -> int:
-    """The sample seed of tile ``index`` of ``count``: ``(seed * count + index) mod 2**32``.
+    """The sample seed of tile ``index`` of ``count``: ``(seed * count + index) mod 2^32``.
 
     Distinct for the ``count`` tiles of one render; ``count == 1`` gives ``seed``.
 
@@ -136,9 +136,8 @@ def tile_seed(seed: int, index: int, count: int) -> int:
     """
     if not 0 <= index < count:
         raise ValueError(f"index: expected 0 <= index < {count}, got {index}")
-    if not 0 <= seed < 2**32:
-        raise ValueError(f"seed: expected an integer in 0..2^32-1, got {seed}")
-    return (seed * count + index) % 2**32
+    seed = checks.seed(seed)
+    return (seed * count + index) & checks.UINT32_MAX
 
 
 # --------------------------------------------------------------------------- render tasks
@@ -182,10 +181,9 @@ class RenderTask:
             params = tuple(sorted((str(k), str(v)) for k, v in params))
         object.__setattr__(self, "params", params)
         object.__setattr__(self, "scene", str(self.scene))
-        if self.spp is not None and (int(self.spp) != self.spp or self.spp < 1):
-            raise ValueError(f"spp: expected an integer >= 1 or None, got {self.spp!r}")
-        if int(self.seed) != self.seed or not 0 <= self.seed < 2**32:
-            raise ValueError(f"seed: expected an integer in 0..2^32-1, got {self.seed!r}")
+        if self.spp is not None:
+            object.__setattr__(self, "spp", checks.integer(self.spp, "spp", low=1, high=checks.UINT32_MAX))
+        object.__setattr__(self, "seed", checks.seed(self.seed))
         if self.crop is not None:
             crop = tuple(int(v) for v in self.crop)
             if len(crop) != 4 or min(crop[:2]) < 0 or min(crop[2:]) < 1:

@@ -3,7 +3,8 @@
 Evidence: Mitsuba's chi-square test of sampling against pdf (``mitsuba.chi2``),
 exact agreement with Mitsuba's built-in ``diffuse``, an independent NumPy
 implementation of the Phong formula, analytic albedos (white furnace,
-normal-incidence Phong albedo = Ks), and the stiff cases of SPEC.
+normal-incidence Phong albedo = Ks), and stiff scenes (tiny and huge scales, far from the
+origin, grazing light; the ray offsets of the documentation's ``conventions-rendering``).
 """
 
 from __future__ import annotations

@@ -129,8 +129,23 @@ def test_tile_grid_covers_every_pixel_once():
     assert [t.crop for t in tile_grid(5, 4, 2, 2)] == [(0, 0, 2, 2), (2, 0, 3, 2), (0, 2, 2, 2), (2, 2, 3, 2)]
     with pytest.raises(ValueError, match="do not fit"):
         tile_grid(4, 4, 5, 1)  # more tile rows than pixel rows
-    with pytest.raises(ValueError, match="width"):
+    with pytest.raises(ValueError, match="^width: expected an integer >= 1, got 0$"):
         tile_grid(0, 4, 1, 1)
+    with pytest.raises(TypeError, match="^rows: expected an integer, got float 1.5$"):  # pointillist.checks
+        tile_grid(4, 4, 1.5, 1)
+
+
+def test_cluster_and_task_counts_are_checked_before_any_work():
+    from pointillist.distributed import run_tasks, start_cluster
+
+    with pytest.raises(ValueError, match="^n_workers: expected an integer >= 1, got 0$"):
+        start_cluster(0)
+    with pytest.raises(TypeError, match="^n_workers: expected an integer, got float 2.0$"):
+        start_cluster(2.0)
+    with pytest.raises(ValueError, match="^retries: expected an integer >= 0, got -1$"):
+        run_tasks(abs, [1], retries=-1, progress=False)
+    with pytest.raises(TypeError, match="^retries: expected an integer, got bool True$"):
+        run_tasks(abs, [1], retries=True, progress=False)
 
 
 def test_tile_seed_scheme():
@@ -158,10 +173,13 @@ def test_assemble_tiles_places_and_checks():
 
 
 def test_render_task_validates():
-    with pytest.raises(ValueError, match="spp"):
+    with pytest.raises(ValueError, match="^spp: expected an integer in 1..4294967295, got 0$"):
         RenderTask(DEFAULT, spp=0)
-    with pytest.raises(ValueError, match="seed"):
+    with pytest.raises(TypeError, match="^spp: expected an integer, got float 2.5$"):  # pointillist.checks
+        RenderTask(DEFAULT, spp=2.5)
+    with pytest.raises(ValueError, match="^seed: expected an integer in 0..4294967295, got 4294967296$"):
         RenderTask(DEFAULT, seed=2**32)
+    assert type(RenderTask(DEFAULT, spp=np.int64(4), seed=np.uint32(7)).seed) is int  # a plain int in cache keys
     with pytest.raises(ValueError, match="crop"):
         RenderTask(DEFAULT, crop=(0, 0, 0, 4))
     assert RenderTask(DEFAULT, {"b": 1, "a": "x"}).params == (("a", "x"), ("b", "1"))

@@ -156,8 +156,10 @@ def test_sensor_argument_is_checked(mi):
     from pointillist.camera_relative import make_camera_relative
     from pointillist.scene import parse_scene
 
-    for bad in (-1, 1.0, True, "0"):
-        with pytest.raises(ValueError, match="sensor: expected a non-negative integer"):
+    with pytest.raises(ValueError, match="^sensor: expected an integer >= 0, got -1$"):
+        make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=-1)
+    for bad in (1.0, True, "0"):  # pointillist.checks: a value of another type is a TypeError
+        with pytest.raises(TypeError, match="^sensor: expected an integer, got "):
             make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=bad)
     parsed = make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=3)
     assert not parsed.recentring.moved and "no sensor 3 (1 sensor(s))" in parsed.recentring.reason

@@ -576,7 +576,7 @@ def test_resize_refuses_huge_sizes_up_front():
 
 
 def test_atomic_write_cleans_up_and_names_the_path(tmp_path):
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     def fail(tmp):
         Path(tmp).write_text("half")

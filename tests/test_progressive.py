@@ -4,6 +4,7 @@ checkpoints, resume, interruption, and `pointillist render --time/--target-error
 from __future__ import annotations
 
 import math
+import re
 import shutil
 import signal
 import subprocess
@@ -303,19 +304,19 @@ def test_the_accumulator_has_read_a_pass_image_when_add_returns(mi, rng):
 
 
 def test_warnings_say_why_an_estimate_is_not_trusted_and_count_nonfinite_pixels():
-    from pointillist.progressive import _warnings
+    from pointillist.progressive.report import render_warnings
 
     stats = _stats(passes=12, spp=96, estimated_relmse=0.01, halves_ratio=7.5, floored=0.1, trusted=False)
-    (line,) = _warnings(stats, None)
+    (line,) = render_warnings(stats, None)
     assert "not trusted: its two halves differ 7.5x (more than 3x)" in line
-    (line,) = _warnings(replace(stats, halves_ratio=1.2, floored=0.8), None)
+    (line,) = render_warnings(replace(stats, halves_ratio=1.2, floored=0.8), None)
     assert "not trusted: 80% of it comes from single samples more than 64x their pixel's neighbourhood" in line
-    assert _warnings(replace(stats, halves_ratio=1.2, floored=0.1, trusted=True), None) == []
-    assert _warnings(replace(stats, estimated_relmse=math.nan), None) == []        # no estimate: nothing to say
-    assert _warnings(stats, None, "interrupted") == []     # an interrupted render says so in its one line
-    nan_line, _ = _warnings(replace(stats, nonfinite=5), 3)
+    assert render_warnings(replace(stats, halves_ratio=1.2, floored=0.1, trusted=True), None) == []
+    assert render_warnings(replace(stats, estimated_relmse=math.nan), None) == []        # no estimate: nothing to say
+    assert render_warnings(stats, None, "interrupted") == []     # an interrupted render says so in its one line
+    nan_line, _ = render_warnings(replace(stats, nonfinite=5), 3)
     assert nan_line.startswith("5 of 4096 pixels are NaN or inf (from pass 3 on)")
-    assert "(in the resumed passes)" in _warnings(replace(stats, nonfinite=5, trusted=True), None)[0]
+    assert "(in the resumed passes)" in render_warnings(replace(stats, nonfinite=5, trusted=True), None)[0]
 
 
 def test_halves_that_disagree_make_the_estimate_untrusted(mi, rng):
@@ -407,9 +408,11 @@ def test_render_passes_rejects_bad_arguments(mi):
     from pointillist.progressive import render_passes
 
     scene = _load(EDGES, res=8)
-    for kwargs, message in [({"pass_spp": 0}, r"pass_spp: expected an integer in 1..2\^32-1 or a callable, got 0"),
-                            ({"pass_spp": 2.5}, "pass_spp"), ({"pass_spp": 1, "seed": -1}, "seed: expected")]:
-        with pytest.raises(ValueError, match=message):
+    for kwargs, error, message in [
+            ({"pass_spp": 0}, ValueError, r"pass_spp: expected an integer in 1\.\.4294967295, got 0$"),
+            ({"pass_spp": 2.5}, TypeError, "pass_spp: expected an integer, got float 2.5"),
+            ({"pass_spp": 1, "seed": -1}, ValueError, "seed: expected")]:
+        with pytest.raises(error, match=message):
             next(render_passes(scene, **kwargs))
 
 
@@ -554,18 +557,23 @@ def test_unreachable_target_and_all_nonfinite_images_are_said_up_front():
     assert Budget(seconds=5.0)(dead) > 0
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"seconds": 0}, "seconds: expected a positive finite number, got 0"),
-    ({"seconds": math.nan}, "seconds: expected a positive finite number, got nan"),
-    ({"target_error": -1.0}, "target_error: expected a positive finite number, got -1.0"),
-    ({"spp": 0}, "spp: expected an integer in 1..2^32-1, got 0"),
-    ({"pass_spp": 1.5}, "pass_spp: expected an integer"),
-    ({"min_passes": 2}, "min_passes: expected an integer >= 8"),
+@pytest.mark.parametrize("kwargs, error, message", [
+    ({"seconds": 0}, ValueError, "seconds: expected a number > 0, got 0"),
+    ({"seconds": math.nan}, ValueError, "seconds: expected a finite number, got nan"),
+    ({"seconds": math.inf}, ValueError, "seconds: expected a finite number, got inf"),
+    ({"seconds": "5"}, TypeError, "seconds: expected a number, got str '5'"),
+    ({"target_error": -1.0}, ValueError, "target_error: expected a number > 0, got -1"),
+    ({"spp": 0}, ValueError, "spp: expected an integer in 1..4294967295, got 0"),
+    ({"spp": 2**32}, ValueError, "spp: expected an integer in 1..4294967295, got 4294967296"),
+    ({"pass_spp": 1.5}, TypeError, "pass_spp: expected an integer, got float 1.5"),
+    ({"pass_spp": True}, TypeError, "pass_spp: expected an integer, got bool True"),
+    ({"min_passes": 2}, ValueError, "min_passes: expected an integer >= 8, got 2"),
 ])
-def test_budget_rejects_bad_values(kwargs, message):
+def test_budget_rejects_bad_values(kwargs, error, message):
+    """Budget's arguments go through pointillist.checks: its messages, TypeError for a wrong type."""
     from pointillist.progressive import Budget
 
-    with pytest.raises(ValueError, match=message.replace("^", r"\^")):
+    with pytest.raises(error, match="^" + re.escape(message) + "$"):
         Budget(**kwargs)
 
 
@@ -753,3 +761,17 @@ def test_cli_target_error_that_would_run_for_ever_stops_with_one_line(tmp_path, 
     proc = cli("render", "-o", out, *args, timeout=240)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert message in proc.stderr and not out.exists() and not out.with_suffix(".progress.csv").exists()
+
+
+@pytest.mark.parametrize("seconds, error, message", [
+    (0, ValueError, "checkpoint_seconds: expected a number > 0, got 0"),
+    (math.inf, ValueError, "checkpoint_seconds: expected a finite number, got inf"),
+    ("60", TypeError, "checkpoint_seconds: expected a number, got str '60'"),
+])
+def test_render_progressive_checks_checkpoint_seconds_before_any_pass(mi, tmp_path, seconds, error, message):
+    from pointillist.progressive import Budget, render_progressive
+
+    with pytest.raises(error, match="^" + re.escape(message) + "$"):
+        render_progressive(_load(EDGES, res=8), EDGES, Budget(spp=2), checkpoint_seconds=seconds,
+                           checkpoint_file=tmp_path / "x.checkpoint.npz", progress=False)
+    assert list(tmp_path.iterdir()) == []

@@ -259,7 +259,7 @@ def test_an_output_inside_an_input_folder_is_refused(mi, tmp_path):
 
 def test_a_failed_write_names_the_target_never_the_temporary_file(tmp_path):
     """Defect 3: a checkpoint that could not be replaced named `.x.checkpoint.npz.abc.tmp.npz`."""
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     target = tmp_path / "x.checkpoint.npz"
     target.mkdir()
@@ -526,9 +526,9 @@ def _edit(path: Path, checksum: bool, stats: dict, **changes) -> None:
     arrays.update(changes)
     arrays["stats"] = np.array(json.dumps(dict(json.loads(str(arrays["stats"])), **stats)))
     if checksum:
-        from pointillist.progressive import _checksum
+        from pointillist.progressive import checkpoint
 
-        arrays["checksum"] = np.array(_checksum(arrays))
+        arrays["checksum"] = np.array(checkpoint.checksum(arrays))
     with open(path, "wb") as handle:
         np.savez(handle, **arrays)
 

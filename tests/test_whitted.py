@@ -5,7 +5,8 @@ point lights: same camera rays, so equal up to rounding; within noise for area
 and environment lights and for every built-in BSDF kind), analytic results
 (two emitting mirrors: L = E (max_depth + 1); rays trapped by total internal
 reflection in a glass sphere: L = E sum F^k with F from ``mi.fresnel``), and the
-stiff cases of SPEC (max_depth 0 and 50, 1e5 translation, 1e-4 scale, grazing).
+stiff cases (max_depth 0 and 50, 1e5 translation, 1e-4 scale, grazing: the ray offsets of the
+documentation's ``conventions-rendering``).
 """
 
 from __future__ import annotations

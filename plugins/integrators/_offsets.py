@@ -44,6 +44,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from pointillist import checks
+
 __all__ = ["ERROR_ULPS", "DEFAULT_ULPS", "SHADOW_ULPS", "UNIT_ROUNDOFF", "gamma", "magnitude",
            "shape_offset_scale", "ErrorBounds"]
 
@@ -68,8 +70,7 @@ def gamma(n: int) -> float:
     >>> round(gamma(1) / 2.0 ** -24, 6)
     1.0
     """
-    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-        raise ValueError(f"n: expected a non-negative integer, got {n!r}")
+    n = checks.integer(n, "n", low=0)
     return n * UNIT_ROUNDOFF / (1.0 - n * UNIT_ROUNDOFF)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from pointillist.checks import UINT32_MAX
 from pointillist.plugins.integrators._offsets import ErrorBounds
 from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 
@@ -18,7 +19,7 @@ MAX_UNROLLED_EMITTERS = 16
 
 #: Largest ``max_depth``: the depth counter is a ``UInt32`` that counts up to
 #: ``max_depth + 1`` (a chain that long never ends in practice: two facing mirrors).
-MAX_DEPTH_LIMIT = 2**32 - 2
+MAX_DEPTH_LIMIT = UINT32_MAX - 1
 
 _DELTA_LOBES = (mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.Null)
 

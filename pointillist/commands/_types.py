@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["positive_int", "non_negative_int", "positive_float", "finite_float"]
+from pointillist.checks import UINT32_MAX
 
-#: Counts (samples, seeds) above this overflow Mitsuba's 32-bit counters.
-UINT32_MAX = 2**32 - 1
+__all__ = ["positive_int", "non_negative_int", "positive_float", "finite_float"]
 
 
 def _parse(text: str, kind: type, expected: str):

@@ -215,7 +215,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     ValueError
         ``records`` empty, ``max_bytes`` not positive, or a render of another size than the reference.
     """
-    from pointillist.imaging.io import atomic_write, read_exr
+    from pointillist.files import atomic_write
+    from pointillist.imaging.io import read_exr
     from pointillist.imaging.metrics import as_rgb, error_maps, error_spectrum
     from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, NYQUIST
     from pointillist.render_output import SAMPLE_COUNT_LAYER

@@ -151,7 +151,7 @@ def record_json(record: RenderRecord) -> dict[str, Any]:
 
 def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as indented JSON into ``path``, atomically."""
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
@@ -213,7 +213,7 @@ def load_scores(path: Path, key: str, *, maps: bool) -> dict[str, Any] | None:
 
 def save_scores(path: Path, key: str, scores: dict[str, Any], *, maps: bool) -> None:
     """Store a render's error spectrum (and with ``maps`` its :data:`MAP_NAMES` maps) for ``key`` at ``path``."""
-    from pointillist.imaging.io import atomic_write
+    from pointillist.files import atomic_write
 
     spectrum = scores["spectrum"]
     arrays = dict(scores_key=np.array(key), spectrum_frequency=spectrum.frequency, spectrum_power=spectrum.power,

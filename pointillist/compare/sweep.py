@@ -177,12 +177,11 @@ def _render_tasks(scene_path: str, tasks: Sequence[Task], *, params: dict[str, s
                   render: Callable[..., RenderRecord], progress: bool,
                   log: Callable[[str], None] | None) -> list[RenderRecord]:
     """The sweep's first step: every task's record, rendered or found finished, with its progress."""
-    import sys
-
     from pointillist.compare.tables import format_time
+    from pointillist.terminal import draws_progress
 
     records = []
-    terminal = progress and sys.stderr.isatty()
+    terminal = draws_progress(progress)
     bar = None
     if terminal:  # (tqdm's import alone is a tenth of a cached rerun: only for a bar)
         from tqdm import tqdm
