@@ -147,7 +147,9 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
                  plot_file: str | os.PathLike | None = None) -> PostResult:
     """Read ``source``, run ``steps`` (``"a:k=v;b"``), then each of ``step``, then ``dither``
     (``METHOD[:ARGS]``), and write ``output`` (``.png`` or ``.exr``); with ``plot`` (or
-    ``plot_file``), a before/after histogram plot too.
+    ``plot_file``), a before/after histogram plot too. Without any step the image is converted:
+    an EXR becomes the sRGB preview ``render --png`` writes (clipped to 0..1, sRGB curve), an
+    8-bit image is written as it is.
 
     Raises
     ------
@@ -163,7 +165,8 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     if output is None:
         raise UsageError("--output: expected an output .png or .exr file name")
     text = ";".join([steps, *step] + ([f"dither:{dither.replace(':', ',', 1)}"] if dither else []))
-    pipeline = parse_steps(text)
+    # no step at all is a conversion (an EXR to an sRGB PNG preview, as `render --png` writes it)
+    pipeline = parse_steps(text) if any(chunk.strip() for chunk in text.split(";")) else []
     source, out = Path(source), Path(output)
     if not source.is_file():
         raise UsageError(f"input: no such file: {source}")

@@ -127,7 +127,7 @@ def test_lut_step_reads_a_table(rng, tmp_path, capsys):
     (["--steps", "quantize"], "levels"),
     (["--steps", "hsv:30"], "RGB"),
     (["--steps", "lut:/no/such/table.txt"], "file"),
-    ([], "no step"),
+    (["--steps", "gamma:2.2", "--plot-file", "x.jpg"], "--plot-file"),
 ])
 def test_bad_input_is_one_line_and_status_2(exr, tmp_path, capsys, args, message):
     source = exr
@@ -265,3 +265,26 @@ def test_list_steps_into_a_closed_pipe_ends_quietly_with_141():
     finally:
         os.close(write_end)
     assert done.returncode == 141 and done.stderr == "", (done.returncode, done.stderr)
+
+
+def test_no_step_converts_an_exr_into_the_preview_render_writes(tmp_path, capsys, rng):
+    """`post render.exr -o render.png` without steps writes the PNG that `render --png` writes (the
+    preview: clipped, sRGB-encoded, to float32 rounding of an independent float64 encoding); an
+    8-bit PNG is written as it is."""
+    linear = (rng.random((9, 7, 3)) * 1.5).astype(np.float32)  # some values above 1: clipped
+    write_exr(tmp_path / "r.exr", linear)
+    status, stdout, _ = run(capsys, str(tmp_path / "r.exr"), "-o", str(tmp_path / "r.png"))
+    assert status == 0 and "converted, no step" in stdout
+    expected = np.clip(np.round(255 * tone_srgb(np.clip(linear, 0, 1))), 0, 255).astype(np.uint8)
+    got = np.asarray(Image.open(tmp_path / "r.png"))
+    assert got.shape == expected.shape and np.abs(got.astype(int) - expected).max() <= 1
+    assert (got == expected).mean() > 0.99
+    status, _, _ = run(capsys, str(tmp_path / "r.png"), "-o", str(tmp_path / "copy.png"))
+    assert status == 0
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "copy.png")), got)
+
+
+def tone_srgb(values):
+    """The sRGB encoding of IEC 61966-2-1, in float64 (independent of the project's own)."""
+    values = np.asarray(values, dtype=np.float64)
+    return np.where(values <= 0.0031308, 12.92 * values, 1.055 * values ** (1 / 2.4) - 0.055)

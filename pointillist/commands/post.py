@@ -6,6 +6,9 @@ step that needs display intensities comes before any tone mapping,
 ``tonemap:clip`` (clip to 0..1, sRGB curve, scale to 255) is applied first and
 said so. PNG/JPEG input is already on 0..255.
 
+Without steps, the image is converted: ``post render.exr -o render.png`` writes the sRGB preview
+that ``render --png`` writes.
+
 Output: ``.png`` writes 8-bit (display values as they are, or an sRGB preview
 of linear values when no step ran that leaves linear light); ``.exr`` writes the
 float values as they are.
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {key}: {value:.6g}")
     for note in result.notes:
         print(note, file=sys.stderr)
-    print(f"wrote {result.output} ({'; '.join(result.done)})")
+    print(f"wrote {result.output} ({'; '.join(result.done) or 'converted, no step'})")
     if result.plot is not None:
         print(f"wrote {result.plot}")
     return 0
