@@ -12,7 +12,7 @@ against a pre-tiled uint8 map. Every other kernel is reported.
 
 Like with like: ordered dithering is timed twice against OpenCV,
 (a) float32 in both: our float32 tensor vs ``cv2.compare(float32 image, float32 tiled map)``; the
-    map holds :func:`imaging.dither.intensity_thresholds` (I >= map is exactly the SPEC rule);
+    map holds :func:`imaging.dither.intensity_thresholds` (I >= map is exactly the conventions' rule);
 (b) uint8 in both: our uint8 path (bytes read in the kernel) vs ``cv2.compare(uint8 image,
     uint8 tiled map ceil(255 T / (n^2 + 1)))``.
 Both results are checked equal to ours before timing. Bytes moved are printed: OpenCV writes a

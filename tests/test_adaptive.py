@@ -323,7 +323,7 @@ def test_variance_criterion_stops_flat_pixels_and_refines_edges(mi):
 
 
 def _variance_rule_count(values, spp, max_error, p_value, factor):
-    """The SPEC's stopping rule replayed in float64: rounds of the same ``spp`` luminance values
+    """The conventions' stopping rule replayed in float64: rounds of the same ``spp`` luminance values
     (a grid sampler puts every round's samples at the same cell centres) until
     ``z sqrt(var / n) <= max_error |mean|`` (z = the normal quantile of 1 - p/2, var with n - 1)
     or ``factor * spp`` samples."""

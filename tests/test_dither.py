@@ -1,9 +1,9 @@
-"""Tests of imaging.dither (SPEC "Dithering") and the ``post --dither`` step.
+"""Tests of imaging.dither (docs/conventions.md, "Dithering and halftoning") and the ``post --dither`` step.
 
 The heart: the parallel error diffusion must equal, bit for bit, a straightforward sequential
 float64 scan written here (``reference_diffuse``), for every kernel, raster and serpentine. The
 reference uses the published error-diffusion tables written out below (``PUBLISHED``), never the
-module's own ``KERNELS``, and multi-level thresholds computed here from the SPEC's rule.
+module's own ``KERNELS``, and multi-level thresholds computed here from the conventions' rule.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pointillist.imaging.dither import (KERNELS, TEMPLATE_4, bayer, blue_noise, 
 X = 0
 PUBLISHED = {
     # R. W. Floyd & L. Steinberg, "An adaptive algorithm for spatial greyscale", Proc. SID 17(2),
-    # 75-77, 1976 (and the SPEC).
+    # 75-77, 1976 (and docs/conventions.md).
     "floyd_steinberg": (16, [[0, X, 7],
                              [3, 5, 1]]),
     # J. F. Jarvis, C. N. Judice & W. H. Ninke, "A survey of techniques for the display of
@@ -70,7 +70,7 @@ def published_weights(name):
 
 
 def independent_tables(levels, level=128.0, linear=False):
-    """(thresholds, working values, output values) of the SPEC's multi-level rule, from scratch.
+    """(thresholds, working values, output values) of the conventions' multi-level rule, from scratch.
 
     Output level k is k 255 / (levels - 1); in the working space (display, or linear light via the
     IEC 61966-2-1 sRGB decoding written out here) the threshold between levels k - 1 and k lies at
@@ -126,7 +126,7 @@ def reference_diffuse(image, weights, *, serpentine=False, tables=None, level=12
 
 
 def reference_simple(image, level=128.0):
-    """SPEC simple error diffusion: 100 % of the error to the next pixel of the serpentine scan."""
+    """The conventions' simple error diffusion: 100 % of the error to the next pixel of the serpentine scan."""
     H, W = image.shape
     out = np.zeros((H, W), dtype=np.float32)
     carried = 0.0
@@ -352,7 +352,7 @@ def test_colour_is_per_channel():
 
 
 # ----------------------------------------------------------------------------------------------
-# hand-worked cases from the SPEC definitions
+# hand-worked cases from the conventions' definitions
 
 
 def test_threshold_is_the_filters_function():

@@ -3,7 +3,7 @@
 1-bit ordered dithering compares each value with a per-entry intensity threshold
 (``intensity_thresholds``) instead of computing p per pixel; uint8 input is read as bytes; the
 template index uses shifts and masks for powers of two and a float reciprocal otherwise. These
-tests hold each path to the SPEC rule evaluated exactly (integers or exact float64 products),
+tests hold each path to the conventions' rule evaluated exactly (integers or exact float64 products),
 at the edges of the domain, and check that a call is one kernel launch with no recompilation.
 """
 
@@ -30,7 +30,7 @@ def tiled(template, height, width):
 
 
 def spec_rule(image, template):
-    """SPEC: p = min(floor(I (n^2+1) / 255), n^2) with I clipped to 0..255 (NaN -> 0); white if p >= T.
+    """The rule: p = min(floor(I (n^2+1) / 255), n^2) with I clipped to 0..255 (NaN -> 0); white if p >= T.
 
     Evaluated exactly: for T <= n^2, p >= T  <=>  I (n^2+1) >= 255 T, and the product of a float32
     and an integer below 2^29 is exact in float64.
@@ -319,7 +319,7 @@ def test_float32_single_product_divmod_is_exact_below_2_to_22():
 
 def test_uint8_pre_tiled_map_equals_the_table_path(monkeypatch):
     """1-bit uint8 ordered dithering compares the bytes with a cached pre-tiled byte map; it equals
-    the per-pixel table route (taken above the size limit) and the SPEC rule, for every shape."""
+    the per-pixel table route (taken above the size limit) and the conventions' rule, for every shape."""
     import pointillist.imaging.dither.templates as dither_module
 
     rng = np.random.default_rng(11)

@@ -1,4 +1,4 @@
-"""imaging.filters against the SPEC, hand-worked cases, scipy.ndimage and OpenCV."""
+"""imaging.filters against docs/conventions.md, hand-worked cases, scipy.ndimage and OpenCV."""
 
 from __future__ import annotations
 
@@ -125,7 +125,7 @@ def test_zero_keep_crop_interior_matches_scipy(rng, shape):
 def test_sobel_matches_opencv_and_components(rng):
     img = image(rng, (11, 13))
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
-    gy = -cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)  # SPEC's y is up
+    gy = -cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)  # the conventions' y is up
     mag, ox, oy = F.sobel(img, border="clamp", components=True)
     np.testing.assert_allclose(out(ox), gx, atol=1e-3)
     np.testing.assert_allclose(out(oy), gy, atol=1e-3)

@@ -1,4 +1,4 @@
-"""imaging.tone against numpy written from the SPEC formulas, OpenCV, colour-science and hand cases."""
+"""imaging.tone against numpy written from docs/conventions.md, OpenCV, colour-science and hand cases."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def assert_8bit(result, float_result):
     np.testing.assert_array_equal(a(result), as_8bit(float_result))
 
 
-# ------------------------------------------------------------------------------------------ SPEC references
+# ---------------------------------------------------------------------------- the conventions' reference formulas
 
 def spec_equalize(levels_image: np.ndarray, levels: int) -> np.ndarray:
     """F(i) = max(0, round(L t(i) / (h w)) - 1), on integer levels (numpy rounds half to even)."""
@@ -158,7 +158,7 @@ def test_stretch_hand_case_and_identity():
 
 def test_stretch_degenerate_breakpoints():
     x = np.arange(256, dtype=np.float32).reshape(1, -1)
-    # r1 = r2: a step, at or above r -> last segment; s1 = 0, s2 = 255 is the SPEC threshold
+    # r1 = r2: a step, at or above r -> last segment; s1 = 0, s2 = 255 is the conventions' threshold
     np.testing.assert_array_equal(a(contrast_stretch(x, 128, 0, 128, 255)), a(threshold(x, 128)))
     step = a(contrast_stretch(x, 100, 50, 100, 200))
     np.testing.assert_allclose(step[0, :100], x[0, :100] * 0.5, atol=1e-5)
@@ -287,7 +287,7 @@ def test_equalize_matches_spec_uint8(image):
 @pytest.mark.parametrize("name", ["camera", "coins", "moon"])
 def test_equalize_matches_spec_on_real_and_noisy_images(name):
     # scikit-image's 8-bit photographs and a noisy image of odd size (tail bytes after the packed
-    # words): the pair histogram, folded on the host, and the host-side table give the SPEC's levels
+    # words): the pair histogram, folded on the host, and the host-side table give the conventions' levels
     from skimage import data
 
     noisy = np.random.default_rng(3).integers(0, 256, (999, 1003), dtype=np.uint8)

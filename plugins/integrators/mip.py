@@ -139,7 +139,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
             </integrator>
     """
 
-    PLUGIN_NAME = "mip"
+    PLUGIN_NAME: str  # "mip", the file's name, given by pointillist.plugins.register()
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
@@ -595,5 +595,4 @@ class MIPIntegrator(mi.SamplingIntegrator):
                 f"window={self.window}, colormap={self.colormap}, volume={shape}]")
 
 
-PLUGIN_NAME = "mip"
 PLUGIN_CLASS = MIPIntegrator

@@ -22,7 +22,8 @@ samplers give with ``<rfilter type="box"/>`` in the film; Mitsuba's default Gaus
 pixel next to an edge gets another value.
 
 The dimension counter is a Dr.Jit ``UInt32`` (never a Python int) so that it is
-loop state inside the integrators' symbolic loops (NOTES-mitsuba.md); the seed
+loop state inside the integrators' symbolic loops (a Python int would be frozen into the
+traced loop as a constant); the seed
 is opaque so a new seed does not recompile the kernels.
 
 Sub-classes implement ``_pattern(sample, pixel_key) -> (x, y)`` in [0, 1)^2 and
@@ -196,20 +197,11 @@ class PatternSampler(mi.Sampler):
         return mi.Point2f(rx, ry)
 
     # -- copies ---------------------------------------------------------------------------
-    def _copy_config(self, other: "PatternSampler") -> None:
-        """Copy the pattern configuration (not the per-lane state) into ``other``."""
-        other._base_seed = self._base_seed
-
     def _new(self) -> "PatternSampler":
         props = mi.Properties()
         props["sample_count"] = int(self.sample_count())
         props["seed"] = int(self._base_seed)
-        for key, value in self._extra_properties().items():
-            props[key] = value
         return type(self)(props)
-
-    def _extra_properties(self) -> dict:
-        return {}
 
     def fork(self):
         return self._new()

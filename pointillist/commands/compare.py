@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 
+from pointillist.checks import UINT32_MAX
 from pointillist.commands._types import positive_int
 
 NAME = "compare"
@@ -31,8 +32,8 @@ def spp_list(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
     if not values or min(values) < 1:
         raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
-    if max(values) >= 2**32:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers in 1..2^32-1, got {text!r}")
+    if max(values) > UINT32_MAX:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers in 1..{UINT32_MAX}, got {text!r}")
     return sorted(set(values))
 
 
