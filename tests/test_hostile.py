@@ -121,7 +121,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("post-output-unwritable", ["post", "{d}/good.png", "-o", "{ro}/x.png", "--steps", "gamma:2"], ERROR),
     ("post-plot-proc", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "gamma:2",
                         "--plot-file", "/proc/hostile.png"], ERROR),
-    ("post-no-steps", ["post", "{d}/good.png", "-o", "{o}/x.png"], ERROR),
+    ("post-no-steps", ["post", "{d}/good.png", "-o", "{o}/x.png"], OK),  # a conversion
+    ("post-no-steps-output-is-input", ["post", "{d}/good.png", "-o", "{d}/good.png"], ERROR),
     ("post-unknown-step", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "nope"], ERROR),
     ("post-step-syntax", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "gamma:=;;:"], ERROR),
     ("post-gamma-text", ["post", "{d}/good.png", "-o", "{o}/x.png", "--steps", "gamma:abc"], ERROR),
