@@ -263,7 +263,7 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
         if background is not None:
             props["background"] = float(background)
         try:
-            integrator = mi.load_dict(props)
+            integrator = mi.load_dict(props, parallel=False)
         except RuntimeError as error:  # a property the integrator refused, wrapped by Mitsuba
             from pointillist.scene import mitsuba_message
 
@@ -283,8 +283,8 @@ def project_volume(volume, *, view: str | None = "axial", azimuth: float = 0.0, 
     image_size, half_w, half_h = view_frame(volume.extent, voxel_axes, size=size, native=native,
                                             counts=volume.shape_xyz, spacing=volume.spacing)
     sensor = mi.load_dict(_sensor_dict(mi, np.asarray(volume.extent), axes, image_size, half_w, half_h,
-                                       perspective))
-    scene = mi.load_dict({"type": "scene"})
+                                       perspective), parallel=False)
+    scene = mi.load_dict({"type": "scene"}, parallel=False)
     image = np.array(integrator.project(scene, sensor))
     if neurological and _has_left_right(axes[0]):
         image = np.ascontiguousarray(image[:, ::-1])

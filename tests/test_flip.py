@@ -71,7 +71,7 @@ def renders(mi):
     """Per scene: the 64-spp reference and the 1- and 4-spp renders (96 x 96, other seeds)."""
     images = {}
     for name in SCENES:
-        scene = mi.load_file(str(SCENE_DIR / f"{name}.xml"), res="96")
+        scene = mi.load_file(str(SCENE_DIR / f"{name}.xml"), parallel=False, res="96")
         reference = np.asarray(mi.render(scene, spp=64, seed=1000))[..., :3]
         images[name] = (np.ascontiguousarray(reference, np.float32),
                         {spp: np.ascontiguousarray(np.asarray(mi.render(scene, spp=spp, seed=spp))[..., :3],

@@ -343,7 +343,7 @@ def test_window_and_colormap(mi):
 def test_scene_file_renders_and_matches_project(mi):
     from conftest import SCENES
 
-    scene = mi.load_file(str(SCENES / "mip.xml"), res=48)
+    scene = mi.load_file(str(SCENES / "mip.xml"), parallel=False, res=48)
     integrator = scene.integrator()
     assert integrator.volume.data.shape == (64, 64, 64)
     assert integrator.texture_info()["precision"] == "half"  # integer HU in float32 -> exact half
