@@ -210,10 +210,11 @@ def main() -> int:
         # the same diffusion by the one-column schedule (issue 32's blocked schedule off): same bits
         from drjit.llvm import UInt8 as Bytes
 
+        from pointillist.imaging.dither._shared import _quantiser
         from pointillist.imaging.wavefront import diffuse_wavefront
 
         fs_kernel = tuple((dy, dx, k / 16) for dy, dx, k in d.KERNELS["floyd_steinberg"].weights)
-        fs_tables = d._quantiser(2, 128.0, False)
+        fs_tables = _quantiser(2, 128.0, False)
         u8_flat = Bytes(u8.reshape(-1))
         assert np.array_equal(diffuse_wavefront(u8_flat, size, size, 1, fs_kernel, False, fs_tables, eight_bit=True,
                                                 blocks=False).numpy(), np.asarray(d.floyd_steinberg(u8)).ravel())
