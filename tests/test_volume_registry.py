@@ -93,3 +93,21 @@ def test_building_the_command_line_imports_no_imaging_module():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("module, reader, label, package", [
+    ("nibabel", "nifti.read_nifti", "NIfTI", "nibabel"),
+    ("pydicom", "dicom.read_dicom_series", "DICOM", "pydicom"),
+    ("nrrd", "nrrd.read_nrrd", "NRRD", "pynrrd"),
+])
+def test_a_missing_medical_package_is_one_clear_error(monkeypatch, tmp_path, module, reader, label, package):
+    """Without its package a reader says which one and the extra that installs it."""
+    import importlib
+    import sys
+
+    monkeypatch.setitem(sys.modules, module, None)  # `import module` now raises ImportError
+    name, function = reader.split(".")
+    read = getattr(importlib.import_module(f"pointillist.imaging.volumes.formats.{name}"), function)
+    with pytest.raises(ValueError, match=rf"^volume: reading {label} needs {package} "
+                                         r"\(pip install 'pointillist\[medical\]'\)$"):
+        read(tmp_path / "volume")

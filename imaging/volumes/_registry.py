@@ -8,6 +8,7 @@ A reader is one module of :mod:`pointillist.imaging.volumes.formats` that ends w
 
 from __future__ import annotations
 
+import importlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +16,15 @@ from typing import Any, Callable
 
 from pointillist import checks
 from pointillist.imaging.volumes._model import Volume
+
+
+def optional_package(module: str, label: str, package: str):
+    """Import ``module`` for the ``label`` reader; ValueError naming the package and the extra
+    that installs it (``pointillist[medical]``) when it is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise ValueError(f"volume: reading {label} needs {package} (pip install 'pointillist[medical]')") from None
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import numpy as np
 from pointillist import checks
 from pointillist.errors import one_line
 from pointillist.imaging.volumes._model import Volume, _pick_frame, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, register
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_dicom_series"]
 
@@ -284,11 +284,8 @@ def read_dicom_series(folder: str | os.PathLike, *, frame: int | None = None,
     """
     if frame is not None:
         checks.integer(frame, "frame", low=0)
-    try:
-        import pydicom
-        from pydicom.errors import InvalidDicomError
-    except ImportError:
-        raise ValueError("volume: reading DICOM needs pydicom (pip install 'pointillist[medical]')") from None
+    pydicom = optional_package("pydicom", "DICOM", "pydicom")
+    from pydicom.errors import InvalidDicomError
     folder = Path(folder)
     datasets = _choose_series(folder, _image_files(folder, pydicom, InvalidDicomError), series)
     first = datasets[0][1]

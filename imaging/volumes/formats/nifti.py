@@ -14,7 +14,7 @@ from pointillist import checks
 from pointillist.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _pick_frame, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, register
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_nifti"]
 
@@ -69,10 +69,7 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
     """
     if frame is not None:
         checks.integer(frame, "frame", low=0)
-    try:
-        import nibabel
-    except ImportError:
-        raise ValueError("volume: reading NIfTI needs nibabel (pip install 'pointillist[medical]')") from None
+    nibabel = optional_package("nibabel", "NIfTI", "nibabel")
     path = Path(path)
     stream = None
     try:

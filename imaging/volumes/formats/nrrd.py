@@ -10,7 +10,7 @@ import numpy as np
 
 from pointillist.errors import one_line
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, register
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_nrrd"]
 
@@ -36,10 +36,7 @@ def read_nrrd(path: str | os.PathLike) -> Volume:
     array is read in C order: ``data[z, y, x]`` with NRRD's first (fastest) axis as x; ``space
     directions`` row n is axis n's step.
     """
-    try:
-        import nrrd
-    except ImportError:
-        raise ValueError("volume: reading NRRD needs pynrrd (pip install 'pointillist[medical]')") from None
+    nrrd = optional_package("nrrd", "NRRD", "pynrrd")
     path = Path(path)
     try:
         header = nrrd.read_header(str(path))
