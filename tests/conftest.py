@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+SCENES = ROOT / "scenes"
 
 # The suite's processes start with SIGINT and SIGTERM deliverable whoever started pytest: a CI
 # runner may start it with the two blocked or ignored, and children inherit both. (The commands
@@ -33,7 +34,6 @@ def _signals_deliverable():
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     yield
-SCENES = ROOT / "scenes"
 
 
 @pytest.fixture(scope="session")
