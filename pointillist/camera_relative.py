@@ -35,13 +35,16 @@ the scene's sensors; ``pointillist render`` renders the first). The other sensor
 scene: each renders the same image as before, with coordinates relative to the first. A sensor
 without a position (``distant``, ``irradiancemeter``) leaves the scene where it is.
 
-When (:func:`recentre_rule`): a scene moves only when that shrinks its coordinates, i.e. when the
-rendered sensor is at least :data:`GAIN` times farther from the world origin than from the median
-of the positions the scene states (shapes, lights, volumes). A scene near the origin, or a camera
-far away looking at content near the origin (where moving would make the content's coordinates
-large instead), is left exactly as written. A scene that states no position but the sensor's (only
-mesh files without ``to_world``, whose vertices are unknown before loading) moves when the sensor
-is farther than :data:`FAR` from the origin.
+When (:func:`recentre_rule`): only where float32 positions would lose precision that shows. A
+scene moves when the spacing of float32 numbers at the rendered sensor's distance from the origin
+is more than :data:`PRECISION` times the distance from the sensor to the median of the positions
+the scene states (shapes, lights, volumes): an angle of 1e-5 radian seen from the camera, about
+1/70 of a pixel of a 1000-pixel film with a 40 degree field of view. Every other scene (near the
+origin, or a camera far away looking at content near the origin, where moving would make the
+content's coordinates large instead) is handed to Mitsuba exactly as parsed, and renders bit for
+bit as ``mi.load_file`` loads it. A scene that states no position but the sensor's (only mesh files
+without ``to_world``, whose vertices are unknown before loading) moves when the sensor is farther
+than :data:`FAR` from the origin.
 
 Mitsuba's ``aov`` integrator reports ``position`` in the rendered (camera-relative) space: add
 ``origin_offset`` (:func:`offset_text`, the EXR header) to get world positions where a ray hit.
@@ -56,12 +59,12 @@ import numpy as np
 
 from pointillist import checks
 
-__all__ = ["GAIN", "FAR", "Recentring", "recentre_rule", "sensor_positions", "stated_positions",
+__all__ = ["PRECISION", "FAR", "Recentring", "recentre_rule", "float32_spacing", "sensor_positions", "stated_positions",
            "make_camera_relative", "offset_text"]
 
-#: A scene moves when the rendered sensor is at least GAIN times farther from the world origin
-#: than from the median of the scene's stated positions (it shrinks the coordinates by that much).
-GAIN = 2.0
+#: A scene moves when the float32 spacing at the rendered sensor's position is more than PRECISION
+#: times the distance from the sensor to the median of the scene's stated positions.
+PRECISION = 1e-5
 
 #: Without stated positions besides the sensor's, the scene moves when the sensor is farther than
 #: this from the origin (float32 coordinates there are 6.1e-5 apart).
@@ -156,7 +159,9 @@ def _graph(state) -> list[_Node]:
             nodes.append(_Node(index, kind, "", None, {}, {}, []))
             continue
         props = node.props
-        values = dict(props.items())
+        # read a copy: reading marks a property as used, and Mitsuba refuses a scene with a property
+        # no plugin used (a misspelt name) only while the marks are its plugins' own
+        values = dict(mi.Properties(props).items())
         types = {key: kinds.get(type(value), "") for key, value in values.items()}
         children = [values[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
         nodes.append(_Node(index, kind, props.plugin_name(), props, values, types, children))
@@ -285,16 +290,21 @@ def stated_positions(state) -> np.ndarray:
     return _stated_positions(nodes, world, volumes)
 
 
+def float32_spacing(x: float) -> float:
+    """The gap between float32 numbers at magnitude ``x`` (``numpy.spacing`` of ``float32(|x|)``)."""
+    return float(np.spacing(np.float32(abs(x))))
+
+
 def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[bool, str]:
     """Whether a scene moves to its sensor, and why (see the module's documentation).
 
     Examples
     --------
     >>> import numpy as np
-    >>> recentre_rule(np.array([0.0, 1.6, 5.5]), np.array([[0, 0.5, 0], [2, 4, 3.0]]))[0]
+    >>> recentre_rule(np.array([0.0, -12.0, 5.0]), np.array([[0, 0, 1.25], [4, -4, 8.0]]))[0]
     False
     >>> recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
-    (True, 'the sensor is 17321 from the origin, 5 from the median stated position')
+    (True, 'float32 positions at the sensor, 17321 from the origin, are 0.00195 apart: more than 1e-05 x its distance 5 to the median stated position')
     >>> recentre_rule(np.array([0.0, 0.0, 3e3]), np.zeros((0, 3)))[0]
     True
     """
@@ -313,8 +323,11 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     distances = sorted(np.linalg.norm(positions - sensor, axis=1).tolist())
     half = len(distances) // 2
     near = distances[half] if len(distances) % 2 else 0.5 * (distances[half - 1] + distances[half])
-    return far >= GAIN * near, (f"the sensor is {far:.5g} from the origin, {near:.5g} from the median "
-                                "stated position")
+    spacing = float32_spacing(far)
+    moves = spacing > PRECISION * near
+    return moves, (f"float32 positions at the sensor, {far:.5g} from the origin, are {spacing:.3g} apart: "
+                   f"{'more' if moves else 'no more'} than {PRECISION:g} x its distance {near:.5g} to the "
+                   "median stated position")
 
 
 # ------------------------------------------------------------------------------ moving

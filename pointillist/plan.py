@@ -165,7 +165,8 @@ def scene_inputs(parsed) -> list[Path]:
     The scene file and its ``<include>`` files (as the parser found them), then every file a
     string property names (``filename`` of bitmaps, meshes, environment maps, volumes, spectra,
     and any other property whose value is the name of an existing file), resolved as Mitsuba's
-    file resolver does with the scene's folder first. A name that resolves to no file is left
+    file resolver does when the scene is built (the folders of its ``<path>`` elements, then the
+    scene's folder). A name that resolves to no file is left
     out (Mitsuba reports it when the scene is built). Each file once.
     """
     import mitsuba as mi
@@ -174,8 +175,7 @@ def scene_inputs(parsed) -> list[Path]:
 
     found: list[Path] = [Path(str(name)) for name in parsed.state.files]
     string = mi.Properties.Type.String
-    with resolving_from(parsed.path.resolve().parent):
-        resolver = mi.file_resolver()
+    with resolving_from(parsed.path.resolve().parent, getattr(parsed, "resolver", None)) as resolver:
         for node in parsed.state.nodes:
             props = node.props
             for key in props.keys():

@@ -48,10 +48,12 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
                 tiles: tuple[int, int] | None = None, workers: int | None = None, scheduler: str | None = None,
                 cache: str | os.PathLike | None = None, time_budget: float | None = None,
                 target_error: float | None = None, pass_spp: int | None = None, variance_layer: bool = False,
-                checkpoint: float | None = None, resume: bool = False) -> RenderSummary:
+                checkpoint: float | None = None, resume: bool = False, threads: int | None = None) -> RenderSummary:
     """Render ``scene`` to ``output`` (default ``out/<scene name>.exr``) and a PNG preview with ``png``.
 
-    ``spp`` defaults to the scene's. ``tiles`` ``(rows, cols)``, ``workers``,
+    ``spp`` defaults to the scene's. ``threads`` sets the render's thread count (default all cores;
+    1 renders the same image to the last bit on every run: :func:`pointillist.scene.thread_count`).
+    ``tiles`` ``(rows, cols)``, ``workers``,
     ``scheduler`` or ``cache`` render the film as crop-window tiles
     (:func:`pointillist.tiles.render_tiled`), on a Dask cluster with the latter two.
 
@@ -80,6 +82,12 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     progressive = (time_budget is not None or target_error is not None or pass_spp is not None or variance_layer
                    or checkpoint is not None or resume)
     tiled = bool(tiles or workers or scheduler or cache)
+    if threads is not None:
+        from pointillist.checks import integer
+
+        threads = integer(threads, "threads", low=1, high=1024)
+        if progressive or tiled:
+            raise UsageError("--threads: only for a render in one piece (not with passes or tiles)")
     if progressive and tiled:
         raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
                          "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
@@ -125,7 +133,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
             return summary
         spp = spp or info["spp"]
         if not tiled:
-            image, timing = timed_render(loaded, spp=spp, seed=seed)
+            image, timing = timed_render(loaded, spp=spp, seed=seed, threads=threads)
             signals.check()  # stopped during the render: nothing is written
             write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png,
                          layout=layout, inputs=plan.inputs)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import time
+import warnings
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
-           "check_scene_file", "resolving_from", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
+           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count", "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
            "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -49,6 +50,30 @@ def mitsuba_message(error: BaseException) -> str:
     return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
 
 
+def root_cause(error: BaseException) -> BaseException:
+    """The innermost exception of a chain: ``mi.render`` reports a plugin's failure as
+    "drjit.custom(...): error while performing a custom differentiable operation. (see above)",
+    with the plugin's own exception chained to it."""
+    seen = {id(error)}
+    while True:
+        inner = error.__cause__ or error.__context__
+        if inner is None or id(inner) in seen:
+            return error
+        seen.add(id(inner))
+        error = inner
+
+
+def render_error(error: RuntimeError) -> Exception:
+    """What a failed ``mi.render`` becomes: Mitsuba's own message as one line in a UsageError (the
+    scene asks for something this variant or machine cannot do: a blackbody spectrum in an RGB
+    variant, a film larger than one tensor), or the root exception itself when it is not Mitsuba's
+    (a bug: it stays an internal error)."""
+    cause = root_cause(error)
+    if isinstance(cause, RuntimeError):
+        return UsageError(f"Mitsuba could not render the scene: {mitsuba_message(cause)}")
+    return cause
+
+
 def parse_defines(defines: list[str] | None) -> dict[str, str]:
     """Parse ``-D key=value`` strings into a dict; UsageError names the bad one."""
     params: dict[str, str] = {}
@@ -71,7 +96,10 @@ class ParsedScene:
     ``<include>``). Changing ``state`` before :func:`instantiate_scene` changes the scene Mitsuba
     builds. ``path`` is the scene file, ``params`` the ``-D`` values it was parsed with.
     ``recentring`` is what :func:`pointillist.camera_relative.make_camera_relative` did to
-    ``state`` (``None`` before it ran).
+    ``state`` (``None`` before it ran). ``resolver`` is Mitsuba's file resolver as the parser left
+    it: the scene's folder first, after the folders its ``<path>`` elements name; files resolve
+    through it when the scene is built, as in ``mi.load_file``. ``default_integrator`` is true when
+    the scene states no ``<integrator>`` and Mitsuba's ``path`` was added (:data:`DEFAULT_INTEGRATOR`).
     """
 
     path: Path
@@ -79,19 +107,34 @@ class ParsedScene:
     state: Any
     config: Any
     recentring: Any = None
+    resolver: Any = None
+    default_integrator: bool = False
+
+
+#: The integrator of a scene that states none: Mitsuba's path tracer with its defaults, the
+#: integrator Mitsuba's documentation names as the default.
+DEFAULT_INTEGRATOR = "path"
 
 
 @contextmanager
-def resolving_from(folder: Path):
-    """Mitsuba's file resolver with ``folder`` first, as ``mi.load_file`` sets it up; restored after."""
+def resolving_from(folder: Path, resolver=None):
+    """Mitsuba's file resolver for loading a scene; the one before is restored after.
+
+    Without ``resolver``: the current one with ``folder`` first, as ``mi.load_file`` sets it up
+    before parsing. With one (a :class:`ParsedScene`'s ``resolver``): a copy of it, which holds the
+    folders the scene's ``<path>`` elements added. Yields the resolver in use.
+    """
     import mitsuba as mi
 
     saved = mi.file_resolver()
-    resolver = mi.FileResolver(saved)
-    resolver.prepend(str(folder))
+    if resolver is None:
+        resolver = mi.FileResolver(saved)
+        resolver.prepend(str(folder))
+    else:
+        resolver = mi.FileResolver(resolver)
     mi.set_file_resolver(resolver)
     try:
-        yield
+        yield resolver
     finally:
         mi.set_file_resolver(saved)
 
@@ -119,11 +162,73 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
                 state = mi.parser.parse_file(config, str(path), **params)
             else:
                 state = mi.parser.parse_string(config, text, **params)
+            # Mitsuba's parser adds the folders of <path> elements to the resolver it finds
+            # set: keep them for building the scene (mi.load_file does the same in one call).
+            resolver = mi.FileResolver(mi.file_resolver())
             mi.parser.transform_all(config, state)
     except RuntimeError as error:
         raise UsageError(f"scene {path}{what}: {mitsuba_message(error)}") from None
     signals.check()
-    return ParsedScene(path=path, params=params, state=state, config=config)
+    parsed = ParsedScene(path=path, params=params, state=state, config=config, resolver=resolver)
+    parsed.default_integrator = _add_default_integrator(state)
+    if parsed.default_integrator:
+        warnings.warn(f"scene {path}: no <integrator>; rendering with Mitsuba's default, "
+                      f"<integrator type=\"{DEFAULT_INTEGRATOR}\"/>", stacklevel=2)
+    return parsed
+
+
+def references(props) -> list[int]:
+    """The node indices a parsed node's properties refer to, in order (read from a copy: reading
+    a property marks it used, and Mitsuba refuses a property no plugin used only while the marks
+    are its plugins' own)."""
+    import mitsuba as mi
+
+    return [value.index() for _key, value in mi.Properties(props).items()
+            if isinstance(value, mi.Properties.ResolvedReference)]
+
+
+def top_level_objects(state) -> list[int]:
+    """The node indices of a parsed scene's top-level objects (its integrator, sensors, shapes,
+    emitters ...), wherever an ``<include>`` stated them: the root's references, and those of the
+    ``merge`` containers Mitsuba's parser gathers meshes in."""
+    import mitsuba as mi
+
+    found, pending, seen = [], list(references(state.nodes[0].props)), set()
+    while pending:
+        index = pending.pop(0)
+        if index in seen:
+            continue
+        seen.add(index)
+        node = state.nodes[index]
+        if node.type == mi.ObjectType.Shape and node.props.plugin_name() == "merge":
+            pending = references(node.props) + pending
+        else:
+            found.append(index)
+    return found
+
+
+def _add_default_integrator(state) -> bool:
+    """Give a parsed scene root that states no integrator Mitsuba's default one
+    (:data:`DEFAULT_INTEGRATOR`, its defaults); True when it was added.
+
+    ``mi.render`` refuses such a scene ("No integrator specified"); Mitsuba's documentation says a
+    scene without one renders with the path tracer, which is what a user of its scenes expects.
+    """
+    import mitsuba as mi
+
+    root = state.nodes[0]
+    if root.type != mi.ObjectType.Scene:
+        return False
+    if any(state.nodes[index].type == mi.ObjectType.Integrator for index in top_level_objects(state)):
+        return False
+    node = mi.parser.SceneNode()
+    node.type = mi.ObjectType.Integrator
+    node.props = mi.Properties(DEFAULT_INTEGRATOR)
+    node.file_index = root.file_index
+    del root  # a view into the node list, which the append may move: read it again after
+    state.nodes.append(node)
+    state.nodes[0].props["_default_integrator"] = mi.Properties.ResolvedReference(len(state.nodes) - 1)
+    return True
 
 
 def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
@@ -135,7 +240,7 @@ def instantiate_scene(parsed: ParsedScene, *, what: str = ""):
     import mitsuba as mi
 
     try:
-        with resolving_from(parsed.path.resolve().parent):
+        with resolving_from(parsed.path.resolve().parent, parsed.resolver):
             scene = mi.parser.instantiate(parsed.config, parsed.state)
     except RuntimeError as error:
         raise UsageError(f"scene {parsed.path}{what}: {mitsuba_message(error)}") from None
@@ -232,11 +337,38 @@ def check_sample_count(width: int, height: int, spp: int) -> None:
                          "takes (2^32 - 1); use fewer spp, or --tiles to split the film")
 
 
-def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 0, integrator=None):
+@contextmanager
+def thread_count(threads: int | None):
+    """Dr.Jit's kernels run on ``threads`` threads inside the block (``None``: as they are); the
+    count before is restored after. On one thread the film's atomic additions of samples that land
+    on the same pixel (any filter wider than a pixel, the particle tracer) come in one fixed order,
+    so a render is the same to the last bit on every run, as Mitsuba's own renders on one thread
+    are; on several the order, and so the last bit, varies from run to run. Used around rendering
+    only: Mitsuba's scene loading waits on its own parallel tasks and must keep its threads."""
+    import drjit as dr
+
+    if threads is None:
+        yield
+        return
+    # Resizing Dr.Jit's thread pool while kernels it launched are still running crashes (or
+    # corrupts their results): wait for them before each change.
+    dr.sync_thread()
+    before = dr.thread_count()
+    dr.set_thread_count(int(threads))
+    try:
+        yield
+    finally:
+        dr.sync_thread()
+        dr.set_thread_count(before)
+
+
+def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 0, integrator=None,
+                 threads: int | None = None):
     """Render ``scene`` and return ``(image, RenderTiming)`` with the image evaluated.
 
     Kernel compile time comes from Dr.Jit's kernel history (codegen + backend
-    time of every JIT kernel launched by this render). Raises UsageError before
+    time of every JIT kernel launched by this render). ``threads``: the render's thread count
+    (:func:`thread_count`; default all cores). Raises UsageError before
     rendering for a film without pixels or more than 2^32 - 1 samples
     (:func:`check_sample_count`), or what the sampler's ``check_render(spp)`` refuses.
     """
@@ -266,9 +398,13 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
             kwargs["spp"] = spp
         if integrator is not None:
             kwargs["integrator"] = integrator
-        image = mi.render(scene, **kwargs)
-        dr.eval(image)
-        dr.sync_thread()
+        try:
+            with thread_count(threads):
+                image = mi.render(scene, **kwargs)
+                dr.eval(image)
+                dr.sync_thread()
+        except RuntimeError as error:
+            raise render_error(error) from None
         end = time.perf_counter()
         history = dr.kernel_history()
     finally:
@@ -322,12 +458,21 @@ def _plugin_id(obj) -> str:
     name = getattr(obj, "PLUGIN_NAME", None)
     if name:
         return name
-    text = obj.class_name() if hasattr(obj, "class_name") else type(obj).__name__
+    python = type(obj).__name__
+    if python in _CLASS_TO_PLUGIN:
+        return _CLASS_TO_PLUGIN[python]
+    text = obj.class_name() if hasattr(obj, "class_name") else python
     return _CLASS_TO_PLUGIN.get(text, text)
 
 
 _CLASS_TO_PLUGIN = {
-    "PathIntegrator": "path", "DirectIntegrator": "direct", "VolumetricPathIntegrator": "volpath",
-    "AOVIntegrator": "aov", "IndependentSampler": "independent", "StratifiedSampler": "stratified",
-    "MultijitterSampler": "multijitter", "OrthogonalSampler": "orthogonal", "LowDiscrepancySampler": "ldsampler",
+    # Mitsuba's C++ integrators and samplers, by class_name()
+    "AOVIntegrator": "aov", "DepthIntegrator": "depth", "DirectIntegrator": "direct", "MomentIntegrator": "moment",
+    "PathIntegrator": "path", "ParticleTracerIntegrator": "ptracer", "StokesIntegrator": "stokes",
+    "VolumetricPathIntegrator": "volpath", "VolpathMisIntegratorImpl": "volpathmis",
+    "IndependentSampler": "independent", "StratifiedSampler": "stratified", "MultijitterSampler": "multijitter",
+    "OrthogonalSampler": "orthogonal", "LowDiscrepancySampler": "ldsampler",
+    # Mitsuba's Python integrators, by Python class (their class_name() is their base's)
+    "PRBIntegrator": "prb", "BasicPRBIntegrator": "prb_basic", "PRBVolpathIntegrator": "prbvolpath",
+    "DirectProjectiveIntegrator": "direct_projective", "PathProjectiveIntegrator": "prb_projective",
 }

@@ -88,3 +88,10 @@ def aligned():
     reads a caller's numpy buffer in place when the buffer is 64-byte aligned (measured: the hash
     follows the alignment, not the size), so kernel-hash "no recompilation" checks use aligned inputs."""
     return _aligned_copy
+
+
+def pytest_addoption(parser):
+    """``--scenes PATH`` (repeatable): also check these scene files, or every scene under these
+    folders, against Mitsuba (tests/test_corpus.py::test_your_scenes_render_as_in_mitsuba)."""
+    parser.addoption("--scenes", action="append", default=[], metavar="PATH",
+                     help="scene XML files or folders to check against Mitsuba, as `pointillist verify` does")

@@ -24,21 +24,30 @@ EDGES = ROOT / "scenes" / "edges.xml"
 
 
 # ------------------------------------------------------------------ scene configuration
-def test_configure_scene_swaps_every_sensor_sampler():
-    xml = """<scene version="3.0.0">
+def test_swap_samplers_swaps_every_sensor_sampler(mi, tmp_path):
+    """Every top-level sensor gets the method's sampler holding only sample_count (stratified's jitter
+    dropped; one added where a sensor has none), also a sensor stated in an <include>."""
+    from pointillist.compare.methods import swap_samplers
+    from pointillist.scene import parse_scene
+
+    (tmp_path / "cam.xml").write_text('<scene version="3.0.0"><sensor type="thinlens"><float name="aperture_radius" '
+                                      'value="0.1"/><film type="hdrfilm"/></sensor></scene>')
+    (tmp_path / "s.xml").write_text("""<scene version="3.0.0">
       <default name="spp" value="8"/>
       <sensor type="perspective"><sampler type="stratified"><integer name="sample_count" value="$spp"/>
         <boolean name="jitter" value="false"/></sampler><film type="hdrfilm"/></sensor>
       <sensor type="orthographic"><film type="hdrfilm"/></sensor>
-    </scene>"""
-    root = ET.fromstring(configure_scene(xml, METHODS["poisson"], 64))
-    samplers = root.findall("sensor/sampler")
-    assert [s.get("type") for s in samplers] == ["poisson", "poisson"]  # added where missing
-    for sampler in samplers:  # only sample_count is kept (stratified's jitter is dropped)
-        assert [(p.tag, p.get("name"), p.get("value")) for p in sampler] == [("integer", "sample_count", "64")]
-    assert root.find("sensor/film") is not None and root.find("default").get("name") == "spp"
-    root = ET.fromstring(configure_scene(xml, METHODS["random"], 4))
-    assert root.find("sensor/sampler").get("type") == "independent"
+      <include filename="cam.xml"/>
+    </scene>""")
+    parsed = parse_scene(tmp_path / "s.xml")
+    swap_samplers(parsed, "poisson", 64)
+    scene = mi.parser.instantiate(parsed.config, parsed.state)
+    samplers = [sensor.sampler() for sensor in scene.sensors()]
+    assert len(samplers) == 3 and all(s.sample_count() == 64 for s in samplers)
+    assert {type(s).__name__ for s in samplers} == {"PoissonSampler"}, [type(s).__name__ for s in samplers]
+    with pytest.raises(UsageError, match="has no <sensor>"):
+        (tmp_path / "empty.xml").write_text('<scene version="3.0.0"/>')
+        swap_samplers(parse_scene(tmp_path / "empty.xml"), "grid", 4)
 
 
 def test_configure_scene_integrator_method_and_errors():
@@ -48,10 +57,14 @@ def test_configure_scene_integrator_method_and_errors():
     integrators = root.findall("integrator")
     assert len(integrators) == 1 and integrators[0].get("type") == "path"
     assert integrators[0][0].get("name") == "max_depth" and float(integrators[0][0].get("value")) == 3
-    with pytest.raises(UsageError, match="no <sensor>"):
+    with pytest.raises(ValueError, match="grid is a sampler method"):
         configure_scene('<scene version="3.0.0"/>', METHODS["grid"], 4)
     with pytest.raises(UsageError, match="not valid XML"):
-        configure_scene("<scene", METHODS["grid"], 4)
+        configure_scene("<scene", method, 4)
+    # the file's bytes: the encoding its declaration names
+    text = '<?xml version="1.0" encoding="UTF-16"?>\n<scene version="3.0.0"><!-- Größe --><sensor type="perspective"/></scene>'
+    root = ET.fromstring(configure_scene(text.encode("utf-16"), method, 2))
+    assert root.find("integrator").get("type") == "path" and root.find("sensor") is not None
 
 
 def test_resolve_methods():

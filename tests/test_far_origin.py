@@ -82,7 +82,7 @@ def test_command_line_says_what_it_moved(cli, tmp_path):
 
 # ---------------------------------------------------------------- the rule
 def test_rule_moves_only_when_the_coordinates_shrink():
-    from pointillist.camera_relative import FAR, GAIN, recentre_rule
+    from pointillist.camera_relative import FAR, PRECISION, recentre_rule
 
     content = np.array([[0.0, 0.5, 0.0], [1.0, 0.5, -1.0], [2.0, 4.0, 3.0]])
     camera = np.array([0.0, 1.6, 5.5])
@@ -91,10 +91,15 @@ def test_rule_moves_only_when_the_coordinates_shrink():
     assert not recentre_rule(camera * 1e3, content)[0]                   # far camera, content at the origin
     assert not recentre_rule(None, content)[0]                           # a sensor without a position
     assert not recentre_rule(np.zeros(3), content)[0]                    # at the origin: nothing to move
-    # the bound: the sensor GAIN times farther from the origin than from the median position
-    near = float(np.median(np.linalg.norm(content + 100 - (camera + 100), axis=1)))
-    far = np.linalg.norm(camera + 100)
-    assert recentre_rule(camera + 100, content + 100)[0] == (far >= GAIN * near)
+    # the bound: float32 spacing at the sensor more than PRECISION x the median distance to the content
+    near = float(np.median(np.linalg.norm(content - camera, axis=1)))
+    for shift in (100.0, 1e3, 2e3, 4e3):
+        far = np.linalg.norm(camera + shift)
+        spacing = float(np.nextafter(np.float32(far), np.float32(np.inf)) - np.float32(far))
+        assert recentre_rule(camera + shift, content + shift)[0] == (spacing > PRECISION * near), shift
+    assert not recentre_rule(camera + 100, content + 100)[0] and recentre_rule(camera + 4e3, content + 4e3)[0]
+    # mitsuba-tutorials' teapot: a camera 13 from the origin looking at content near it stays put
+    assert not recentre_rule(np.array([0.0, -12.0, 5.0]), np.array([[0.0, 0.0, 1.25], [3, -4, 8], [-3, -4, 8]]))[0]
     # non-finite or beyond float32: left as written; non-finite stated positions are ignored
     for bad in (np.inf, np.nan, 1e39):
         assert not recentre_rule(np.array([bad, 0.0, 0.0]), content)[0]
@@ -117,7 +122,7 @@ def test_rule_is_its_definition_whatever_the_units_and_axes(sensor, positions, s
     """On arbitrary positions (NaN and inf among them): the decision is the definition (numpy's
     median of the finite positions' distances), and the same once everything is scaled by a power
     of two (no unit in the rule, except the fallback without positions) or its axes permuted."""
-    from pointillist.camera_relative import FAR, GAIN, recentre_rule
+    from pointillist.camera_relative import FAR, PRECISION, recentre_rule
 
     moves, reason = recentre_rule(sensor, positions)
     finite = positions[np.all(np.isfinite(positions), axis=1)]
@@ -125,7 +130,8 @@ def test_rule_is_its_definition_whatever_the_units_and_axes(sensor, positions, s
     if far == 0:
         assert not moves
     elif len(finite):
-        assert moves == bool(far >= GAIN * np.median(np.linalg.norm(finite - sensor, axis=1)))
+        spacing = float(np.nextafter(np.float32(far), np.float32(np.inf)) - np.float32(far))
+        assert moves == bool(spacing > PRECISION * np.median(np.linalg.norm(finite - sensor, axis=1)))
         assert recentre_rule(sensor * scale, positions * scale)[0] == moves
     else:
         assert moves == bool(far > FAR)

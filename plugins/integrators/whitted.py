@@ -249,12 +249,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, offset, ds, active=ok), ok)
             return dr.select(ok, bsdf.eval(ctx, si, si.to_local(ds.d), ok) * weight, 0.0)
         Ld = mi.Spectrum(0.0)
-        for emitter in features.emitters:
+        table = scene.emitters_dr()
+        for index, emitter in enumerate(features.emitters):
             if mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta):
                 sample = mi.Point2f(0.5)       # point / spot / directional: exact, no randomness
             else:
                 sample = sampler.next_2d(active)
-            ds, weight = emitter.sample_direction(si, sample, active)
+            # Called through the scene's emitter table (a one-target virtual call), not on the Python
+            # object: Dr.Jit 1.5 inlines each direct call, and two emitters whose radiance is a
+            # bitmap then define the same texture helper twice in one kernel ("invalid
+            # redefinition of function": LLVM refuses the kernel and the process aborts).
+            pointer = dr.gather(mi.EmitterPtr, table, mi.UInt32(index), active)
+            ds, weight = pointer.sample_direction(si, sample, active)
             ok = active & dr.any(weight != 0.0)
             shadow_ray = self.bounds.spawn_ray_to(si, offset, ds, self.bounds.emitter_bound_of(emitter), ok)
             visible = ok & ~scene.ray_test(shadow_ray, ok)

@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=positive_int, help="samples per pixel (default: the scene's)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="sample seed (default 0)")
     parser.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside the EXR")
+    parser.add_argument("--threads", type=positive_int, metavar="N",
+                        help="render on N threads (default: every core); 1 gives the same image to the last bit "
+                             "on every run, as Mitsuba's own render on one thread")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML); repeatable")
     prog = parser.add_argument_group(
@@ -75,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                        params=parse_defines(args.defines), tiles=args.tiles, workers=args.workers,
                        scheduler=args.scheduler, cache=args.cache, time_budget=args.time_budget,
                        target_error=args.target_error, pass_spp=args.pass_spp, variance_layer=args.variance_layer,
-                       checkpoint=args.checkpoint, resume=args.resume)
+                       checkpoint=args.checkpoint, resume=args.resume, threads=args.threads)
     info, timing = done.info, done.timing
     print(f"wrote {done.exr}" + (f" and {done.png}" if done.png else ""))
     if done.recentring is not None and done.recentring.moved:

@@ -22,7 +22,7 @@ from pointillist.errors import UsageError
 
 __all__ = [
     "Method", "METHODS", "MITSUBA_SAMPLERS", "SAMPLER_ALIASES", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS",
-    "register_method", "describe_methods", "resolve_methods", "sweep_parameter", "setting_label", "configure_scene",
+    "register_method", "describe_methods", "resolve_methods", "sweep_parameter", "setting_label", "configure_scene", "swap_samplers",
     "scene_key", "load_configured_scene",
 ]
 
@@ -182,35 +182,25 @@ def setting_label(method: str, value: float) -> str:
 def _property(tag: str, name: str, value: Any) -> ET.Element:
     return ET.Element(tag, {"name": name, "value": str(value)})
 
-def configure_scene(xml_text: str, method: Method, value: float) -> str:
-    """The scene XML text with ``method`` swapped in at sweep value ``value``.
+def configure_scene(xml_text: str | bytes, method: Method, value: float) -> str:
+    """The scene XML text with integrator ``method`` swapped in at sweep value ``value``.
 
-    Sampler methods replace the ``<sampler>`` of every top-level ``<sensor>`` (adding
-    one where a sensor has none) by ``<sampler type=plugin>`` holding only
-    ``sample_count``: properties of the old sampler (which may not exist for the new
-    type) are dropped. Integrator methods replace the ``<integrator>``.
+    The scene's ``<integrator>`` is replaced by ``<integrator type=plugin>`` holding only the
+    method's parameter (or edited by the method's own ``configure``). ``xml_text`` may be the
+    file's bytes: their XML declaration or byte-order mark says the encoding (UTF-16, Latin-1 ...).
+    Sampler methods are swapped in the parsed scene instead (:func:`swap_samplers`), wherever an
+    ``<include>`` put the sensors.
 
-    Raises UsageError for XML that does not parse or a scene without a sensor.
+    Raises UsageError for XML that does not parse, ValueError for a sampler method.
     """
+    if method.kind == "sampler":
+        raise ValueError(f"method: {method.name} is a sampler method; swap_samplers puts it into a parsed scene")
     try:
         root = ET.fromstring(xml_text)
     except ET.ParseError as error:
         raise UsageError(f"scene: not valid XML ({error})") from None
     if method.configure is not None:
         method.configure(root, value)
-    elif method.kind == "sampler":
-        sensors = root.findall("sensor")
-        if not sensors:
-            raise UsageError("scene: no <sensor> element at the top level of the scene file "
-                             "(compare swaps the sensor's <sampler>)")
-        for sensor in sensors:
-            old = sensor.findall("sampler")
-            position = list(sensor).index(old[0]) if old else len(sensor)
-            for element in old:
-                sensor.remove(element)
-            sampler = ET.Element("sampler", {"type": method.plugin})
-            sampler.append(_property("integer", "sample_count", int(value)))
-            sensor.insert(position, sampler)
     else:
         old = root.findall("integrator")
         position = list(root).index(old[0]) if old else 0
@@ -220,6 +210,42 @@ def configure_scene(xml_text: str, method: Method, value: float) -> str:
         integrator.append(_property("float", method.parameter, float(value)))
         root.insert(position, integrator)
     return ET.tostring(root, encoding="unicode")
+
+
+def swap_samplers(parsed, plugin: str, sample_count: int) -> None:
+    """Give every top-level sensor of a parsed scene (:class:`pointillist.scene.ParsedScene`, in
+    place) the sampler ``<sampler type=plugin>`` holding only ``sample_count``: the old sampler's
+    other properties (which the new type may not have) are dropped; a sensor without a sampler
+    gets one. Sensors stated in an ``<include>`` count as the scene's own.
+
+    Raises UsageError for a scene without a sensor.
+    """
+    import mitsuba as mi
+
+    from pointillist.scene import references, top_level_objects
+
+    state = parsed.state
+    sensors = [i for i in top_level_objects(state) if state.nodes[i].type == mi.ObjectType.Sensor]
+    if not sensors:
+        raise UsageError(f"scene {parsed.path}: has no <sensor> (compare swaps the sensor's <sampler>)")
+
+    def sampler() -> Any:
+        props = mi.Properties(plugin)
+        props["sample_count"] = int(sample_count)
+        return props
+
+    for index in sensors:
+        own = [i for i in references(state.nodes[index].props) if state.nodes[i].type == mi.ObjectType.Sampler]
+        for child in own:
+            state.nodes[child].props = sampler()
+        if not own:
+            node = mi.parser.SceneNode()
+            node.type = mi.ObjectType.Sampler
+            node.props = sampler()
+            node.file_index = state.nodes[index].file_index
+            state.nodes.append(node)  # may move the node list: index it again after
+            state.nodes[index].props["_swapped_sampler"] = mi.Properties.ResolvedReference(len(state.nodes) - 1)
+
 
 def scene_key(scene_path: str | os.PathLike, params: dict[str, str] | None = None) -> str:
     """A short hash of the scene's inputs (the scene file and every file it reads) and parameters
@@ -240,6 +266,10 @@ def load_configured_scene(scene_path: str | os.PathLike, method: Method, value: 
     from pointillist.scene import check_scene_file, instantiate_scene, parse_scene
 
     path = check_scene_file(scene_path)
-    text = configure_scene(path.read_text(), method, value)
     what = f" with {method.name}"
-    return instantiate_scene(make_camera_relative(parse_scene(path, params, text=text, what=what)), what=what)
+    if method.kind == "sampler":
+        parsed = parse_scene(path, params, what=what)
+        swap_samplers(parsed, method.plugin, int(value))
+    else:
+        parsed = parse_scene(path, params, text=configure_scene(path.read_bytes(), method, value), what=what)
+    return instantiate_scene(make_camera_relative(parsed), what=what)
