@@ -43,8 +43,10 @@ the scene states (shapes, lights, volumes): an angle of 1e-5 radian seen from th
 origin, or a camera far away looking at content near the origin, where moving would make the
 content's coordinates large instead) is handed to Mitsuba exactly as parsed, and renders bit for
 bit as ``mi.load_file`` loads it. A scene that states no position but the sensor's (only mesh files
-without ``to_world``, whose vertices are unknown before loading) moves when the sensor is farther
-than :data:`FAR` from the origin.
+without ``to_world``, whose vertices are unknown before loading) and whose sensor is farther than
+:data:`FAR` from the origin is built once as written to measure where its shapes are (their
+bounding boxes' centres stand for the stated positions); the rule alone moves it beyond
+:data:`FAR` when even that tells nothing.
 
 Mitsuba's ``aov`` integrator reports ``position`` in the rendered (camera-relative) space: add
 ``origin_offset`` (:func:`offset_text`, the EXR header) to get world positions where a ray hit.
@@ -295,6 +297,28 @@ def float32_spacing(x: float) -> float:
     return float(np.spacing(np.float32(abs(x))))
 
 
+def _built_positions(parsed) -> np.ndarray:
+    """The centres of the shapes' bounding boxes once Mitsuba has built the scene as written: for
+    a scene whose shapes all come from files (no position stated in the XML) and whose sensor is
+    far from the origin, where the rule needs to know where the content is (a Cornell box in
+    millimetres seen from 1.3e3 away stays put). Empty when the scene does not build (its error is
+    reported when it is built for good)."""
+    import mitsuba as mi
+
+    saved = mi.file_resolver()
+    if getattr(parsed, "resolver", None) is not None:
+        mi.set_file_resolver(mi.FileResolver(parsed.resolver))
+    try:
+        scene = mi.parser.instantiate(parsed.config, parsed.state)
+        boxes = [shape.bbox() for shape in scene.shapes()] if isinstance(scene, mi.Scene) else []
+    except RuntimeError:
+        boxes = []
+    finally:
+        mi.set_file_resolver(saved)
+    centres = [[0.5 * (float(box.min[i]) + float(box.max[i])) for i in range(3)] for box in boxes if box.valid()]
+    return np.array(centres, dtype=np.float64).reshape(-1, 3)
+
+
 def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[bool, str]:
     """Whether a scene moves to its sensor, and why (see the module's documentation).
 
@@ -443,7 +467,10 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     world, local, volumes = _walk(nodes)
     positions = _sensor_positions(nodes)
     where = positions[sensor] if sensor < len(positions) else None
-    moves, reason = recentre_rule(where, _stated_positions(nodes, world, volumes))
+    stated_positions_ = _stated_positions(nodes, world, volumes)
+    if len(stated_positions_) == 0 and where is not None and recentre_rule(where, stated_positions_)[0]:
+        stated_positions_ = _built_positions(parsed)   # only mesh files: measure where they are
+    moves, reason = recentre_rule(where, stated_positions_)
     if sensor >= len(positions):
         reason = f"the scene has no sensor {sensor} ({len(positions)} sensor(s))"
     blocked = _blocked(nodes, world, local) if moves else ""

@@ -417,17 +417,24 @@ def test_render_passes_rejects_bad_arguments(mi):
 
 
 # ------------------------------------------------------------------------------ budgets
-def _simulate(budget, *, overhead, per_spp, compile_s=1.0, width=256, height=256, error=None):
-    """Run the budget against a model of pass times (and an error ~ c / spp); returns the stats."""
+def _simulate(budget, *, overhead, per_spp, compile_s=1.0, width=256, height=256, error=None, size_compile_s=None):
+    """Run the budget against a model of pass times (and an error ~ c / spp); returns the stats.
+
+    The first pass compiles for ``compile_s``; a pass of an spp not rendered before compiles a
+    kernel of its own for ``size_compile_s`` (as Mitsuba does; default: the same as the first)."""
     stats = _stats(width=width, height=height)
     history = []
+    size_compile_s = compile_s if size_compile_s is None else size_compile_s
     while (n := budget(stats)) > 0:
         # pass_spp, a power of two (one kernel), or the pass cut to land on the spp budget
         assert n == budget.pass_spp or n & (n - 1) == 0 or stats.spp + n == budget.spp, n
-        seconds = overhead + n * per_spp + (compile_s if stats.passes == 0 else 0.0)
+        compiled = compile_s if stats.passes == 0 else (size_compile_s if n not in stats.sizes else 0.0)
+        seconds = overhead + n * per_spp + compiled
         spp, passes = stats.spp + n, stats.passes + 1
         stats = replace(stats, passes=passes, spp=spp, pass_spp=n, seconds=stats.seconds + seconds,
-                        pass_seconds=seconds, pass_compile_seconds=compile_s if passes == 1 else 0.0,
+                        sizes=stats.sizes if n in stats.sizes else (*stats.sizes, n),
+                        size_compile_seconds=stats.size_compile_seconds if n in stats.sizes else compiled,
+                        pass_seconds=seconds, pass_compile_seconds=compiled,
                         estimated_relmse=error / spp if error and passes >= 8 else math.nan,
                         trusted=bool(error) and passes >= 8)
         history.append(stats)
@@ -440,11 +447,38 @@ def _simulate(budget, *, overhead, per_spp, compile_s=1.0, width=256, height=256
 def test_time_budget_ends_within_10_percent(per_spp, seconds):
     from pointillist.progressive import Budget
 
-    history = _simulate(Budget(seconds=seconds), overhead=0.015, per_spp=per_spp)
+    history = _simulate(Budget(seconds=seconds), overhead=0.015, per_spp=per_spp, size_compile_s=0.0)
     end = history[-1].seconds
     assert abs(end - seconds) <= 0.1 * seconds, (end, len(history))
-    # granularity: half a spp (the rate includes the last pass's overhead share) + one pass overhead
-    assert abs(end - seconds) <= (per_spp + 0.015) / 2 + 0.015 + 1e-9, (end, len(history))
+    # over: at most half a spp (the rate includes the last pass's overhead share) + one pass overhead;
+    # under: also less when a new size would not fit with the compilation the first pass took
+    assert end - seconds <= (per_spp + 0.015) / 2 + 0.015 + 1e-9, (end, len(history))
+
+
+@pytest.mark.parametrize("size_compile_s", [0.05, 0.3, 0.8])
+def test_time_budget_last_passes_count_the_compilation_of_a_new_size(size_compile_s):
+    """Mitsuba compiles a kernel for each new pass spp: the shrinking last passes reuse a size already
+    rendered, or take a new one only where it fits with its compilation. A 4 s budget then ends at most
+    0.5 % over (the rule blind to compilation overshot by up to one compilation: 20 % at 0.8 s), and
+    within 5 % under (the time left may fit no compiled size)."""
+    from pointillist.progressive import Budget
+
+    history = _simulate(Budget(seconds=4.0), overhead=0.01, per_spp=0.003, compile_s=0.5,
+                        size_compile_s=size_compile_s, width=64, height=64)
+    end = history[-1].seconds
+    assert -0.05 * 4.0 <= end - 4.0 <= 0.005 * 4.0, [(s.pass_spp, round(s.seconds, 3)) for s in history]
+
+
+def test_budget_prefers_a_compiled_size_for_the_last_pass():
+    from pointillist.progressive import Budget
+
+    budget = Budget(seconds=10.0)
+    stats = _stats(passes=9, spp=600, pass_spp=64, seconds=9.0, pass_seconds=6.4, sizes=(256, 64, 8),
+                   size_compile_seconds=0.5)
+    assert budget(stats) == 8                                   # 10 spp fit: 8 is compiled, 4 would need 0.5 s more
+    assert budget(replace(stats, sizes=(256, 64))) == 4         # no compiled size fits: a new one, with its compile
+    late = replace(stats, sizes=(256, 64), size_compile_seconds=2.0)
+    assert budget(late) == 0 and budget.stop_reason(late) == "time"   # not even 1 spp fits after compiling
 
 
 def test_time_budget_passes_are_short_and_at_least_one_runs():
@@ -458,12 +492,17 @@ def test_time_budget_passes_are_short_and_at_least_one_runs():
 
 
 def test_time_budget_leaves_room_for_the_passes_of_an_estimate():
-    """A first pass (compiling) that takes 60 % of the budget: the other passes shrink so that the render still
-    reaches MIN_PASSES passes, and an estimate (it ended after 3 passes without one on a loaded machine)."""
+    """A first pass (compiling) that takes 30 % of the budget: the other passes shrink so that the render still
+    reaches MIN_PASSES passes, and an estimate (it ended after 3 passes without one on a loaded machine). A new
+    pass size is first assumed to compile as long as the first pass did, then as long as the last new one did."""
     from pointillist.progressive import MIN_PASSES, Budget
 
-    history = _simulate(Budget(seconds=3.0), overhead=0.01, per_spp=0.004, compile_s=1.8, width=64, height=64)
+    history = _simulate(Budget(seconds=3.0), overhead=0.01, per_spp=0.004, compile_s=0.9, width=64, height=64,
+                        size_compile_s=0.0)
     assert len(history) >= MIN_PASSES and abs(history[-1].seconds - 3.0) <= 0.3, [s.pass_spp for s in history]
+    # 60 %: a new size does not fit with the compilation the first pass took; the render never runs over
+    history = _simulate(Budget(seconds=3.0), overhead=0.01, per_spp=0.004, compile_s=1.8, width=64, height=64)
+    assert {s.pass_spp for s in history} == {history[0].pass_spp} and history[-1].seconds <= 3.0
 
 
 def test_spp_budget_lands_exactly():

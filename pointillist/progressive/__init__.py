@@ -82,7 +82,9 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
                           pass_seconds=seconds, pass_compile_seconds=timing.compile,
                           compile_seconds=stats.compile_seconds + timing.compile, estimated_relmse=estimate.relmse,
                           width=stats.width, height=stats.height, seed=seed_k, halves_ratio=estimate.halves_ratio,
-                          floored=estimate.floored, trusted=estimate.trusted, nonfinite=estimate.nonfinite)
+                          floored=estimate.floored, trusted=estimate.trusted, nonfinite=estimate.nonfinite,
+                          sizes=stats.sizes if spp in stats.sizes else (*stats.sizes, spp),
+                          size_compile_seconds=stats.size_compile_seconds if spp in stats.sizes else timing.compile)
         yield acc, stats, timing
 
 

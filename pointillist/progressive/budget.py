@@ -41,7 +41,8 @@ class Budget:
     seconds : float, optional
         Stop when the render seconds (``PassStats.seconds``) reach this, or when less than
         one spp fits in the time left; the last passes shrink (halving their spp) to end close
-        to it, and auto passes leave room for ``min_passes`` passes (an estimate) where the time
+        to it, to a size already rendered where one fits (Mitsuba compiles a kernel for each new
+        spp: a new size must fit with that compilation, ``PassStats.size_compile_seconds``), and auto passes leave room for ``min_passes`` passes (an estimate) where the time
         allows. At least one pass always runs.
     target_error : float, optional
         Stop when the estimated relMSE is at most this and trusted (checked from ``min_passes``
@@ -104,6 +105,16 @@ class Budget:
             return math.inf
         return (self.seconds - stats.seconds) / rate
 
+    def _last_fitting_pass(self, stats: PassStats, cap: float = math.inf) -> int:
+        """The largest pass of at most ``cap`` spp that ends within the time left (0: none): a size
+        already rendered (its kernel compiled) that fits at the last pass's rate, or a new power of
+        two that still fits once its kernel is compiled (``size_compile_seconds`` more)."""
+        fit = min(self._fitting_spp(stats) + 0.5, cap)
+        known = [size for size in stats.sizes if size <= fit]
+        rate = stats.seconds_per_spp()
+        fresh = min((self.seconds - stats.seconds - stats.size_compile_seconds) / rate + 0.5, cap)
+        return max(max(known, default=0), _pow2_floor(int(fresh)) if fresh >= 1 else 0)
+
     def stop_reason(self, stats: PassStats) -> str | None:
         """Why the render is done after ``stats`` (one of :data:`STOP_REASONS` but ``"interrupted"``), or None.
 
@@ -116,7 +127,9 @@ class Budget:
         if self.target_error is not None and stats.passes >= self.min_passes and stats.trusted \
                 and stats.estimated_relmse <= self.target_error:
             return "error"
-        if self.seconds is not None and (stats.seconds >= self.seconds or self._fitting_spp(stats) + 0.5 < 1):
+        if self.seconds is not None and (stats.seconds >= self.seconds or self._fitting_spp(stats) + 0.5 < 1
+                                         or (math.isfinite(self._fitting_spp(stats))
+                                             and self._last_fitting_pass(stats) == 0)):
             return "time"
         if stats.spp >= checks.UINT32_MAX:
             return "limit"
@@ -168,6 +181,9 @@ class Budget:
         if math.isfinite(fit) and self.pass_spp is None and stats.passes < self.min_passes:
             # leave room for the passes an estimate needs (the first one, compiling, may take most of it)
             n = min(n, _pow2_floor(max(int(fit / (self.min_passes - stats.passes)), 1)))
-        if math.isfinite(fit) and int(fit + 0.5) < n:
-            n = _pow2_floor(int(fit + 0.5))
+        if math.isfinite(fit) and (int(fit + 0.5) < n or (n not in stats.sizes
+                                                          and self._last_fitting_pass(stats, n) < n)):
+            # a size whose kernel is compiled, or one worth compiling; a compiled one larger than
+            # asked rather than none (0 is for stop_reason alone to say)
+            n = self._last_fitting_pass(stats, n) or self._last_fitting_pass(stats)
         return int(n)

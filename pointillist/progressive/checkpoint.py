@@ -107,7 +107,8 @@ def load_checkpoint(path: Path, identity: dict, channels: int | None = None) -> 
                          "(its checksum does not match its contents)")
     try:
         saved = json.loads(str(arrays["identity"]))
-        stats = PassStats(**json.loads(str(arrays["stats"])))
+        stats = PassStats(**{key: value for key, value in json.loads(str(arrays["stats"])).items()
+                             if key not in ("sizes", "size_compile_seconds")})  # compiled in that process
         mean, m2 = np.asarray(arrays["mean"]), np.asarray(arrays["m2"])
         weight, passes = int(arrays["weight"]), int(arrays["passes"])
         history = [tuple(float(v) for v in row)

@@ -22,7 +22,11 @@ class PassStats:
     ``estimated_relmse``: NaN before :data:`~pointillist.progressive.estimate.MIN_PASSES` passes;
     ``halves_ratio``, ``floored`` and ``trusted``: as in
     :class:`~pointillist.progressive.estimate.ErrorEstimate`; ``nonfinite``: pixels holding NaN or
-    inf; ``seed``: the Mitsuba seed of the last pass.
+    inf; ``seed``: the Mitsuba seed of the last pass. ``sizes``: the pass spp this process has
+    rendered (Mitsuba compiles a kernel for each new spp; these are compiled), and
+    ``size_compile_seconds`` what a pass of another size is expected to add: the compilation the
+    latest pass of a new size took (the first pass's until another size ran; a new size may also
+    find its kernels compiled already, as powers of two often do). A checkpoint keeps neither (a resumed process compiles anew).
     """
 
     passes: int
@@ -40,6 +44,8 @@ class PassStats:
     floored: float = math.nan
     trusted: bool = False
     nonfinite: int = 0
+    sizes: tuple[int, ...] = ()
+    size_compile_seconds: float = 0.0
 
     def seconds_per_spp(self) -> float:
         """Seconds one spp of the last pass took, JIT compilation left out (NaN before a pass)."""
