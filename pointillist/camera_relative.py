@@ -327,8 +327,11 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     >>> import numpy as np
     >>> recentre_rule(np.array([0.0, -12.0, 5.0]), np.array([[0, 0, 1.25], [4, -4, 8.0]]))[0]
     False
-    >>> recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
-    (True, 'float32 positions at the sensor, 17321 from the origin, are 0.00195 apart: more than 1e-05 x its distance 5 to the median stated position')
+    >>> moves, reason = recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
+    >>> moves, reason[:64]
+    (True, 'float32 spacing 0.00195 at the sensor, 17321 from the origin: > ')
+    >>> reason[64:]
+    '1e-05 x 5 (distance to the median position)'
     >>> recentre_rule(np.array([0.0, 0.0, 3e3]), np.zeros((0, 3)))[0]
     True
     """
@@ -349,9 +352,8 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
     near = distances[half] if len(distances) % 2 else 0.5 * (distances[half - 1] + distances[half])
     spacing = float32_spacing(far)
     moves = spacing > PRECISION * near
-    return moves, (f"float32 positions at the sensor, {far:.5g} from the origin, are {spacing:.3g} apart: "
-                   f"{'more' if moves else 'no more'} than {PRECISION:g} x its distance {near:.5g} to the "
-                   "median stated position")
+    return moves, (f"float32 spacing {spacing:.3g} at the sensor, {far:.5g} from the origin: "
+                   f"{'>' if moves else '<='} {PRECISION:g} x {near:.5g} (distance to the median position)")
 
 
 # ------------------------------------------------------------------------------ moving

@@ -44,7 +44,8 @@ import numpy as np
 
 from pointillist.errors import UsageError
 
-__all__ = ["STEPS", "Check", "SceneReport", "check_scene", "verify_scenes", "scene_files", "mitsuba_render"]
+__all__ = ["STEPS", "SCENE_TIMEOUT", "Check", "SceneReport", "check_scene", "verify_scenes", "scene_files",
+           "mitsuba_render"]
 
 #: The checks :func:`check_scene` can run, in order.
 STEPS = ("mitsuba", "whitted", "samplers", "compare", "progressive")

@@ -16,7 +16,8 @@ from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
-           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count", "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
+           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count",
+           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
            "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")

@@ -62,7 +62,8 @@ def test_configure_scene_integrator_method_and_errors():
     with pytest.raises(UsageError, match="not valid XML"):
         configure_scene("<scene", method, 4)
     # the file's bytes: the encoding its declaration names
-    text = '<?xml version="1.0" encoding="UTF-16"?>\n<scene version="3.0.0"><!-- Größe --><sensor type="perspective"/></scene>'
+    text = ('<?xml version="1.0" encoding="UTF-16"?>\n'
+            '<scene version="3.0.0"><!-- Größe --><sensor type="perspective"/></scene>')
     root = ET.fromstring(configure_scene(text.encode("utf-16"), method, 2))
     assert root.find("integrator").get("type") == "path" and root.find("sensor") is not None
 

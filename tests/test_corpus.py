@@ -5,7 +5,6 @@ folder of your own scenes the same way, each in a process of its own."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -140,3 +139,98 @@ def test_your_scenes_render_as_in_mitsuba(user_scene):
     (report,) = verify_scenes([user_scene], progress=False)
     failed = [f"{c.name}: {c.detail}" for c in report.checks if not c.ok]
     assert not failed, failed
+
+
+# ------------------------------------------------------------------ what a user of Mitsuba's scenes met
+def test_assets_named_through_path_load_from_any_working_folder(cli, tmp_path):
+    """<path value="assets"/> and bare names (meshes/pyramid.obj): the folders the parser adds are kept
+    for building the scene (they were dropped: "failed to instantiate shape plugin of type obj")."""
+    from pointillist.imaging.io import read_exr
+
+    done = cli("render", CORPUS / "paths_and_assets.xml", "-o", tmp_path / "a.exr", "--spp", "1", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert read_exr(tmp_path / "a.exr").image.shape == (24, 24, 3)
+
+
+def test_whitted_with_three_textured_area_lights_and_textured_spot_and_projector(cli, tmp_path):
+    """Dr.Jit aborted the process ("invalid redefinition of function") with two or more area lights
+    whose radiance is a bitmap: whitted calls each emitter through the scene's emitter table."""
+    xml = (CORPUS / "textured_emitters.xml").read_text()
+    third = xml[xml.rindex("    <shape type=\"rectangle\">"):xml.index("    <emitter type=\"spot\">")]
+    xml = xml.replace('<integrator type="path"><integer name="max_depth" value="3"/></integrator>',
+                      '<integrator type="whitted"/>').replace(third, third + third.replace('x="2"', 'x="0" z="-2.5"'))
+    assert xml.count('name="radiance"') == 3
+    (tmp_path / "three.xml").write_text(xml)
+    for name in ("parts", "assets"):
+        (tmp_path / name).symlink_to(CORPUS / name)
+    for seed in ("0", "1"):
+        done = cli("render", tmp_path / "three.xml", "-o", tmp_path / "t.exr", "--seed", seed)
+        assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize("mistake, message", [
+    ('<rgb name="radience" value="4"/>', 'unreferenced property in emitter plugin of type "area": rgb "radience"'),
+    ('<rgb name="radiance" value="4"/><float name="radius_" value="1"/>', "unreferenced property"),
+])
+def test_a_misspelt_property_is_refused_as_mitsuba_refuses_it(cli, tmp_path, mistake, message):
+    """Reading the scene for camera-relative loading marked every property used, so Mitsuba's check of
+    properties no plugin read never fired: a misspelt name rendered with the default value."""
+    xml = (CORPUS / "misspelt.xml").read_text().replace('<rgb name="radience" value="4"/>', mistake)
+    (tmp_path / "m.xml").write_text(xml)
+    (tmp_path / "parts").symlink_to(CORPUS / "parts")
+    done = cli("render", tmp_path / "m.xml", "-o", tmp_path / "m.exr")
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    sensor = (CORPUS / "parts" / "camera.xml").read_text().replace('name="fov"', 'name="fvo"')
+    (tmp_path / "parts2").mkdir()
+    (tmp_path / "parts2" / "camera.xml").write_text(sensor)
+    (tmp_path / "f.xml").write_text((CORPUS / "no_integrator.xml").read_text().replace("parts/camera", "parts2/camera"))
+    (tmp_path / "parts2" / "room.xml").write_bytes((CORPUS / "parts" / "room.xml").read_bytes())
+    done = cli("render", tmp_path / "f.xml", "-o", tmp_path / "f.exr")
+    assert done.returncode == 2 and 'sensor plugin of type "perspective": float "fvo"' in done.stderr, done.stderr
+
+
+def test_a_scene_without_integrator_renders_with_path_and_says_so(cli, tmp_path):
+    from pointillist.imaging.io import read_exr
+
+    done = cli("render", CORPUS / "no_integrator.xml", "-o", tmp_path / "n.exr", "--spp", "1")
+    assert done.returncode == 0, done.stderr
+    assert "warning: scene" in done.stderr and "no <integrator>; rendering with Mitsuba's default, " \
+           '<integrator type="path"/>' in done.stderr
+    assert read_exr(tmp_path / "n.exr").metadata["integrator"] == "path"
+
+
+def test_mitsubas_own_render_error_is_one_line(cli, tmp_path):
+    """It was "internal error: RuntimeError: drjit.custom(...) (see above)" with nothing above."""
+    done = cli("render", CORPUS / "blackbody.xml", "-o", tmp_path / "b.exr")
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == ("pointillist render: error: Mitsuba could not render the scene: "
+                                   "[BlackBodySpectrum] Not implemented for non-spectral modes")
+    assert not (tmp_path / "b.exr").exists()
+
+
+def test_compare_reads_utf16_scenes_and_sensors_from_includes(cli, tmp_path):
+    """compare read the XML as UTF-8 text and wanted a top-level <sensor>: both failed after the
+    reference render. Samplers are now swapped in the parsed scene."""
+    for name in ("utf16.xml", "latin1.xml", "include_defaults_refs.xml"):
+        done = cli("compare", CORPUS / name, "--samplers", "jitter,sobol", "--spp", "1,2", "--reference-spp", "4",
+                   "--out", tmp_path / name)
+        assert done.returncode == 0, (name, done.stderr[-1500:])
+        assert (tmp_path / name / "results.csv").read_text().count("\n") == 5
+
+
+@pytest.mark.parametrize("plugin, name", [("moment", "moment"), ("ptracer", "ptracer"), ("depth", "depth"),
+                                          ("volpathmis", "volpathmis"), ("prb", "prb"), ("aov", "aov")])
+def test_integrators_are_named_by_their_plugin_names(mi, plugin, name):
+    """The EXR header and the summary line name Mitsuba's integrators as a scene writes them (moment was
+    "MomentIntegrator", ptracer "ParticleTracerIntegrator")."""
+    from pointillist.scene import scene_info
+
+    integrator = {"type": plugin}
+    if plugin == "moment":
+        integrator["inner"] = {"type": "path"}
+    if plugin == "aov":
+        integrator["aovs"] = "dd:depth"
+    scene = mi.load_dict({"type": "scene", "integrator": integrator,
+                          "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}}},
+                         parallel=False)
+    assert scene_info(scene)["integrator"] == name

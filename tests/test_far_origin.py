@@ -200,7 +200,8 @@ def test_scenes_that_cannot_move_rigidly_are_left_as_written(mi, tmp_path):
     config = mi.parser.ParserConfig(mi.variant())
     ones = mi.TensorXf(np.ones((2, 3), np.float32))
     state = mi.parser.parse_dict(config, {
-        "type": "scene", "cam": {"type": "perspective", "to_world": mi.ScalarTransform4f().translate([1e5, 1e5, 1e5 + 5])},
+        "type": "scene",
+        "cam": {"type": "perspective", "to_world": mi.ScalarTransform4f().translate([1e5, 1e5, 1e5 + 5])},
         "blobs": {"type": "ellipsoids", "centers": mi.TensorXf(np.full((2, 3), 1e5, np.float32)), "scales": ones,
                   "quaternions": mi.TensorXf(np.tile([0, 0, 0, 1.0], (2, 1)).astype(np.float32))}})
     mi.parser.transform_all(config, state)

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML) in every scene; repeatable")
     parser.add_argument("--only", metavar="STEPS",
-                        help="comma-separated checks to run (default all: mitsuba,whitted,samplers,compare,progressive)")
+                        help="comma-separated checks to run "
+                             "(default all: mitsuba,whitted,samplers,compare,progressive)")
 
 
 def run(args: argparse.Namespace) -> int:

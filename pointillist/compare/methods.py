@@ -22,7 +22,8 @@ from pointillist.errors import UsageError
 
 __all__ = [
     "Method", "METHODS", "MITSUBA_SAMPLERS", "SAMPLER_ALIASES", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS",
-    "register_method", "describe_methods", "resolve_methods", "sweep_parameter", "setting_label", "configure_scene", "swap_samplers",
+    "register_method", "describe_methods", "resolve_methods", "sweep_parameter", "setting_label", "configure_scene",
+    "swap_samplers",
     "scene_key", "load_configured_scene",
 ]
 

@@ -42,8 +42,9 @@ class Budget:
         Stop when the render seconds (``PassStats.seconds``) reach this, or when less than
         one spp fits in the time left; the last passes shrink (halving their spp) to end close
         to it, to a size already rendered where one fits (Mitsuba compiles a kernel for each new
-        spp: a new size must fit with that compilation, ``PassStats.size_compile_seconds``), and auto passes leave room for ``min_passes`` passes (an estimate) where the time
-        allows. At least one pass always runs.
+        spp: a new size must fit with that compilation, ``PassStats.size_compile_seconds``), and
+        auto passes leave room for ``min_passes`` passes (an estimate) where the time allows. At
+        least one pass always runs.
     target_error : float, optional
         Stop when the estimated relMSE is at most this and trusted (checked from ``min_passes``
         on; :class:`~pointillist.progressive.estimate.ErrorEstimate`). Auto passes take 1 spp

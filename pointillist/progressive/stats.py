@@ -26,7 +26,8 @@ class PassStats:
     rendered (Mitsuba compiles a kernel for each new spp; these are compiled), and
     ``size_compile_seconds`` what a pass of another size is expected to add: the compilation the
     latest pass of a new size took (the first pass's until another size ran; a new size may also
-    find its kernels compiled already, as powers of two often do). A checkpoint keeps neither (a resumed process compiles anew).
+    find its kernels compiled already, as powers of two often do). A checkpoint keeps neither (a
+    resumed process compiles anew).
     """
 
     passes: int
