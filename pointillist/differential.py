@@ -153,9 +153,11 @@ def _check_mitsuba(path: Path, *, spp: int, seed: int, params: dict[str, str], w
         from pointillist.scene import root_cause
 
         refused = mitsuba_message(root_cause(error))
-    out = work / "ours.exr"
+    renders = []
 
     def ours_render():
+        out = work / f"ours{len(renders)}.exr"  # a new name each time: a file read is never written over
+        renders.append(out)
         with _working_folder(work):  # from another working folder than the scene's or the caller's
             render_file(path, out, spp=spp, seed=seed, params=params, threads=1)
         return read_exr(out)

@@ -118,6 +118,17 @@ def test_a_scene_whose_mitsuba_image_varies_between_loads(mi, monkeypatch):
     report = check_scene(CORPUS / "include_defaults_refs.xml", steps=["mitsuba"])
     assert report.ok and "varies between loads (2 different images in 2 loads)" in report.checks[0].detail
 
+    def never_ours(path, *, spp, seed, params=None, threads=1):  # varies, and never pointillist's image
+        image, scene = real(path, spp=spp, seed=seed, params=params, threads=threads)
+        calls.append(1)
+        return image * np.float32(1.5 + len(calls) % 2), scene
+
+    monkeypatch.setattr(differential, "mitsuba_render", never_ours)
+    report = check_scene(CORPUS / "include_defaults_refs.xml", steps=["mitsuba"])
+    assert not report.ok and report.checks[0].detail.endswith(
+        f"(Mitsuba's own image of this scene varies between loads (2 different images in "
+        f"{differential.REPEATS + 1} loads), pointillist's is none of them)")
+
 
 def test_verify_command_reports_each_scene_and_a_crash(cli, tmp_path):
     """`pointillist verify` on a folder: one line a check, a summary line, exit 1 when one failed;
