@@ -16,6 +16,7 @@ PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
 
 from __future__ import annotations
 
+import errno
 import os
 import sys
 import tempfile
@@ -291,6 +292,9 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         For metadata values of another type.
     ValueError
         For a bad shape, a reserved or clashing name, or a forbidden path.
+    OSError
+        When the file cannot be written (a full disk, a file size limit: OpenEXR's reason); no
+        partial file is left.
     """
     import OpenEXR
 
@@ -337,8 +341,12 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         header[key] = value
 
     def write(tmp: str) -> None:
-        with OpenEXR.File(header, channels) as exr:
-            exr.write(tmp)
+        try:
+            with OpenEXR.File(header, channels) as exr:
+                exr.write(tmp)
+        except RuntimeError as error:  # OpenEXR's own failures: a full disk, a file size limit
+            reason = str(error).rsplit('". ', 1)[-1].strip() or str(error)
+            raise OSError(errno.EIO, reason.rstrip(".")) from None
 
     atomic_write(path, write)
 

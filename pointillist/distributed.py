@@ -179,17 +179,24 @@ def connect(address: str, *, timeout: float = 10.0, drjit_threads: int | None = 
     return client
 
 @contextlib.contextmanager
-def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+def open_client(workers: int | None = None, scheduler: str | None = None, *,
+                tasks: int | None = None) -> Iterator[Any]:
     """Context manager: a Dask client for ``workers`` or ``scheduler``, or ``None`` (serial).
 
     Raises UsageError if both are given. The local cluster (``workers``) is
-    shut down on exit; a remote cluster (``scheduler``) is only disconnected.
+    shut down on exit; a remote cluster (``scheduler``) is only disconnected. With ``tasks`` (how
+    many tasks will run), a local cluster has no more workers than tasks (a warning says so).
     """
     if workers is not None and scheduler is not None:
         raise UsageError("--workers and --scheduler: give one or the other, not both")
     if workers is None and scheduler is None:
         yield None
         return
+    if workers is not None and tasks is not None and 0 < tasks < workers:
+        import warnings
+
+        warnings.warn(f"--workers {workers}: only {tasks} task(s) to run; starting {tasks} worker(s)", stacklevel=3)
+        workers = tasks
     client = start_cluster(workers) if workers is not None else connect(scheduler)
     try:
         yield client

@@ -101,9 +101,10 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
     ------
     pointillist.errors.UsageError
         (a ``ValueError``) naming ``name``: ``path`` is a folder, exists and is not a regular file,
-        is an input or lies in an input folder, its folder is missing (unless ``make_parent``) or
-        takes no new file (a file is created and removed there to find out: permission bits do not
-        tell for root, an immutable folder or ``/proc``).
+        is an input or lies in an input folder, its name is too long for the temporary file written
+        first (the file system's limit, 255 bytes on most, less 14 and the suffix), its folder is
+        missing (unless ``make_parent``) or takes no new file (a file is created and removed there
+        to find out: permission bits do not tell for root, an immutable folder or ``/proc``).
     """
     path = Path(path)
     if path.is_dir():
@@ -130,7 +131,23 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
     refused = unwritable(parent)
     if refused:
         raise UsageError(f"{name}: cannot write {path} ({refused})")
+    longest = _name_max(parent) - _TEMPORARY_EXTRA - len(os.fsencode(path.suffix))
+    if len(os.fsencode(path.name)) > longest:
+        raise UsageError(f"{name}: the file name {path.name[:40]}... is {len(os.fsencode(path.name))} bytes long; "
+                         f"at most {longest} fit in {parent} (the temporary file written first has a longer name)")
     return path
+
+
+#: Bytes the temporary file's name adds to the output's (``.NAME.XXXXXXXX.tmp`` + the suffix again).
+_TEMPORARY_EXTRA = len(".") + len(".") + 8 + len(".tmp")
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name the file system of ``folder`` takes, in bytes (255 where it does not say)."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError):
+        return 255
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[str], Any]) -> None:

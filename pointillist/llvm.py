@@ -83,7 +83,8 @@ def _version(path: str) -> int | None:
 def candidates() -> list[tuple[int, str]]:
     """Return ``(major_version, path)`` of every libLLVM found, best first.
 
-    A path given in ``DRJIT_LIBLLVM_PATH`` comes first whatever its version;
+    A path given in ``DRJIT_LIBLLVM_PATH`` comes first whatever its version (also a missing file:
+    :func:`find_llvm` then says why it is not used);
     the others are sorted newest version first. Duplicates (symlinks to the
     same file) are listed once.
     """
@@ -126,8 +127,11 @@ def _probe(path: str) -> tuple[bool, str]:
         cache = json.loads(cache_path.read_text())
     except (OSError, ValueError):
         cache = {}
-    if key in cache:
-        return bool(cache[key][0]), str(cache[key][1])
+    if not isinstance(cache, dict):  # a damaged cache ([true], null ...) is probed again, then rewritten
+        cache = {}
+    entry = cache.get(key)
+    if isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], bool) and isinstance(entry[1], str):
+        return entry[0], entry[1]
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=path)
     try:
         proc = subprocess.run(
@@ -158,7 +162,11 @@ def _probe(path: str) -> tuple[bool, str]:
 def find_llvm(*, probe: bool = True) -> str:
     """Return the path of the best usable libLLVM, or raise :class:`LLVMNotFoundError`."""
     rejected: list[str] = []
+    user = os.environ.get("DRJIT_LIBLLVM_PATH")
     for version, path in candidates():
+        if not os.path.isfile(path):
+            rejected.append(f"{path} (no such file)")
+            continue
         if version and version < MIN_LLVM_VERSION:
             rejected.append(f"{path} (LLVM {version} is too old: Dr.Jit 1.5 aborts with it)")
             continue
@@ -167,6 +175,11 @@ def find_llvm(*, probe: bool = True) -> str:
             if not ok:
                 rejected.append(f"{path} (failed a Dr.Jit test kernel: {why})")
                 continue
+        if user and path != user:  # the library asked for is not usable: say so, and which one is used
+            import warnings
+
+            warnings.warn(f"DRJIT_LIBLLVM_PATH: {rejected[0] if rejected else user + ' (not usable)'}; "
+                          f"using {path} instead", stacklevel=2)
         return path
     detail = "; ".join(rejected) if rejected else "no libLLVM shared library found"
     raise LLVMNotFoundError(

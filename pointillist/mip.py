@@ -340,7 +340,7 @@ def project_frames(volume: str | os.PathLike, views: Sequence[dict], options: di
     specs = [{"volume": str(Path(volume).resolve()), "spacing": list(spacing) if spacing else None,
               "load": dict(load or {}), "view": dict(view), "options": dict(options)} for view in views]
     keys = [json_key(s) for s in specs]
-    with open_client(workers, scheduler) as client:
+    with open_client(workers, scheduler, tasks=len(specs)) as client:
         return run_tasks(mip_frame_task, specs, client=client, keys=keys, retries=retries, progress=progress,
                          desc="mip frames")
 

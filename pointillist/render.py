@@ -145,7 +145,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         from pointillist.tiles import render_tiled
 
         tiles = tiles or (1, 1)
-        with open_client(workers, scheduler) as client:
+        with open_client(workers, scheduler, tasks=tiles[0] * tiles[1]) as client:
             where = ("in process" if client is None else f"on {len(client.scheduler_info(n_workers=-1)['workers'])} "
                      f"worker(s) at {client.scheduler.address}")
             result = render_tiled(scene, params, tiles=tiles, spp=spp, seed=seed, client=client, cache=cache,

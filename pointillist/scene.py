@@ -17,8 +17,9 @@ from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
            "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count",
-           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "mitsuba_message", "MAX_MESSAGE", "RenderTiming",
-           "timed_render", "scene_info", "film_filter", "filter_note", "check_sample_count"]
+           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS", "mitsuba_message",
+           "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter", "filter_note",
+           "check_sample_count"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -283,10 +284,25 @@ def check_scene_file(path: str | Path) -> Path:
     return path
 
 
+#: The widest reconstruction filter a film may have, in pixels (its radius): a Gaussian of standard
+#: deviation 4, or Lanczos with 16 lobes. Each sample is splatted over (2 x radius + 1)^2 pixels; a
+#: filter wider than this costs minutes per sample batch and blurs the image beyond use.
+MAX_FILTER_RADIUS = 16.0
+
+
 def check_sensor(scene, path: str | Path) -> None:
-    """UsageError unless the loaded ``scene`` has a sensor (Mitsuba loads a scene without one)."""
+    """UsageError unless the loaded ``scene`` has a sensor (Mitsuba loads a scene without one) whose
+    film's reconstruction filter has a radius in (0, :data:`MAX_FILTER_RADIUS`] pixels (Mitsuba
+    builds a ``tent`` of radius -1 or a ``lanczos`` of 5000 lobes, and then renders for hours)."""
     if not scene.sensors():
         raise UsageError(f"scene {path}: has no <sensor> (a camera to render from)")
+    rfilter = scene.sensors()[0].film().rfilter()
+    radius = float(rfilter.radius())
+    if not 0.0 < radius <= MAX_FILTER_RADIUS:  # also NaN
+        name = str(rfilter).split("[", 1)[0]
+        raise UsageError(f"scene {path}: the film's reconstruction filter ({name}) has radius {radius:g} pixels; "
+                         f"expected more than 0 and at most {MAX_FILTER_RADIUS:g} (a Gaussian's radius is 4 x its "
+                         "stddev, Lanczos' its lobes)")
 
 
 @dataclass

@@ -142,7 +142,7 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         if workers or scheduler:
             from pointillist.distributed import open_client
 
-            with open_client(workers, scheduler) as client:
+            with open_client(workers, scheduler, tasks=len(tasks) + (0 if reference else 1)) as client:
                 cluster_renders = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
                                                   reference_spp=None if reference else reference_spp,
                                                   progress=progress, key=key)

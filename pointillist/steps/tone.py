@@ -7,6 +7,7 @@ Examples: ``--steps "tonemap:reinhard,exposure=1;gamma:2.2"``,
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -64,5 +65,8 @@ def _lut(image, file):
     try:
         table = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, ndmin=1)
     except (OSError, ValueError) as error:
-        raise ValueError(f"lut: file: {path} is not a table of numbers ({error})") from None
+        # name the place, never the text: the file may be one the user may not show (a key, a password file)
+        where = re.search(r"at row (\d+)", str(error))
+        line = f" (row {int(where.group(1)) + 1} is not a number)" if where else ""
+        raise ValueError(f"lut: file: {path} is not a table of numbers{line}") from None
     return tone.lut(image, table)

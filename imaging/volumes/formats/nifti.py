@@ -18,6 +18,22 @@ from pointillist.imaging.volumes._registry import VolumeReader, optional_package
 
 __all__ = ["read_nifti"]
 
+
+
+def _check_scaled_range(path, proxy, index, data: np.ndarray, slope: float, inter: float) -> None:
+    """ValueError when ``scl_slope`` and ``scl_inter`` took a stored value beyond float32 (|x| <=
+    3.4e38): ``data`` (scaled, float32) holds more non-finite values than the stored data (the
+    DICOM reader refuses the same)."""
+    bad = np.count_nonzero(~np.isfinite(data))
+    if bad == 0:
+        return
+    raw = np.asanyarray(proxy.get_unscaled()[index]) if hasattr(proxy, "get_unscaled") else None
+    stored = 0 if raw is None or not np.issubdtype(raw.dtype, np.floating) else np.count_nonzero(~np.isfinite(raw))
+    if bad > stored:
+        raise ValueError(f"volume: {path}: scl_slope {slope:g} and scl_inter {inter:g} take its values beyond "
+                         "float32 (|x| <= 3.4e38)")
+
+
 def _open_nifti(nibabel: Any, path: Path) -> tuple[Any, Any]:
     """``(image, stream)``: the NIfTI image of ``path`` and, for a ``.gz`` file, the gzip stream its
     data is read from (:func:`_drain` checks that stream's CRC once the data is read).
@@ -95,7 +111,9 @@ def read_nifti(path: str | os.PathLike, *, frame: int | None = None) -> Volume:
             raw = proxy.get_unscaled() if index is ... and hasattr(proxy, "get_unscaled") else proxy[index]
             data = np.asanyarray(raw)
         else:
-            data = np.asarray(proxy[index], dtype=np.float32)
+            with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: refused below, not warned
+                data = np.asarray(proxy[index], dtype=np.float32)
+            _check_scaled_range(path, proxy, index, data, float(slope), float(inter))
         _drain(stream)
     except ValueError as error:
         if str(error).startswith(("volume:", "frame:")):

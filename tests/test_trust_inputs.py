@@ -1,0 +1,154 @@
+"""The second round of hostile but realistic inputs: each bounded and checked before the work, with
+one line and exit status 2 (reconstruction filters, file names near the file system's limit, EXR
+writes that fail, damaged start-up caches, scaled volumes beyond float32, error messages that would
+echo a file, more workers than tasks)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROOT, SCENES
+
+FILTER_SCENE = """<scene version="3.0.0"><integrator type="path"/>
+<sensor type="perspective"><film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+{rfilter}</film></sensor><shape type="sphere"/></scene>"""
+
+
+@pytest.mark.parametrize("rfilter, radius", [
+    ('<rfilter type="lanczos"><integer name="lobes" value="5000"/></rfilter>', "5000"),
+    ('<rfilter type="tent"><float name="radius" value="-1"/></rfilter>', "-1"),
+    ('<rfilter type="gaussian"><float name="stddev" value="5"/></rfilter>', "20"),
+])
+def test_reconstruction_filters_are_bounded_before_the_render(cli, tmp_path, rfilter, radius):
+    """They ran for minutes on an 8x8 film (still running after 180 s)."""
+    (tmp_path / "f.xml").write_text(FILTER_SCENE.format(rfilter=rfilter))
+    done = cli("render", tmp_path / "f.xml", "-o", tmp_path / "f.exr", timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert "reconstruction filter" in done.stderr and f"has radius {radius} pixels; expected more than 0 and at " \
+        "most 16" in done.stderr and len(done.stderr.splitlines()) == 1
+    (tmp_path / "ok.xml").write_text(FILTER_SCENE.format(rfilter='<rfilter type="gaussian"><float name="stddev" '
+                                                                  'value="4"/></rfilter>'))
+    assert cli("render", tmp_path / "ok.xml", "-o", tmp_path / "ok.exr").returncode == 0
+
+
+@pytest.mark.parametrize("command", ["render", "post", "mip"])
+def test_output_names_too_long_for_the_temporary_file_are_refused_before_the_work(cli, tmp_path, command):
+    name = "n" * (255 - len(".exr") - 3)      # fits the folder, not the temporary file beside it
+    suffix = ".png" if command != "render" else ".exr"
+    args = {"render": [SCENES / "default.xml", "-D", "res=8"], "post": [SCENES / "sun_sky.exr"],
+            "mip": [SCENES / "phantom64.vol"]}[command]
+    done = cli(command, *args, "-o", tmp_path / (name + suffix))
+    assert done.returncode == 2, done.stderr
+    assert "bytes long; at most 237 fit in" in done.stderr and len(done.stderr.splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_exr_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path):
+    """``ulimit -f`` (a full disk behaves the same): it was "internal error: RuntimeError" with exit 1."""
+    out = tmp_path / "big.exr"
+    script = (f"ulimit -f 1; exec {sys.executable} -m pointillist render {SCENES / 'default.xml'} -D res=64 "
+              f"-o {out}")
+    done = subprocess.run(["bash", "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    lines = [line for line in done.stderr.splitlines() if not line.startswith("jit_kernel_write")]
+    assert done.returncode == 2, done.stderr
+    assert lines == [f"pointillist render: error: cannot write {out}: File too large"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_exr_raises_oserror_naming_the_file(tmp_path, monkeypatch):
+    import OpenEXR
+
+    from pointillist.imaging.io import write_exr
+
+    class Full:
+        def __init__(self, *args):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def write(self, name):
+            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space left on device')
+
+    monkeypatch.setattr(OpenEXR, "File", Full)
+    with pytest.raises(OSError) as raised:
+        write_exr(tmp_path / "x.exr", np.zeros((2, 2, 3), np.float32))
+    assert raised.value.strerror == f"cannot write {tmp_path / 'x.exr'}: No space left on device"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("content", ["[true]", "[]", "null", '{"x": true}', "{", '{"k": [1, 2, 3]}'])
+def test_a_damaged_libllvm_cache_is_probed_again(cli, tmp_path, content):
+    """Every command failed with such a ~/.cache/pointillist/llvm.json."""
+    (tmp_path / "pointillist").mkdir()
+    (tmp_path / "pointillist" / "llvm.json").write_text(content)
+    env = {"XDG_CACHE_HOME": str(tmp_path)}
+    env.pop("DRJIT_LIBLLVM_PATH", None)
+    done = cli("render", SCENES / "default.xml", "-D", "res=8", "-o", tmp_path / "d.exr",
+               env=dict(env, DRJIT_LIBLLVM_PATH=""))
+    assert done.returncode == 0, done.stderr
+    assert isinstance(json.loads((tmp_path / "pointillist" / "llvm.json").read_text()), dict)
+
+
+def test_an_unusable_drjit_libllvm_path_is_said_then_another_is_used(cli, tmp_path):
+    """It was silently ignored."""
+    missing = tmp_path / "libLLVM-19.so"
+    done = cli("render", SCENES / "default.xml", "-D", "res=8", "-o", tmp_path / "d.exr",
+               env={"DRJIT_LIBLLVM_PATH": str(missing)})
+    assert done.returncode == 0, done.stderr
+    assert f"pointillist render: warning: DRJIT_LIBLLVM_PATH: {missing} (no such file); using " in done.stderr
+
+
+def test_a_nifti_scaled_beyond_float32_is_refused(cli, tmp_path):
+    """scl_slope 1e38 gave an image of inf with exit 0 and numpy's "overflow encountered in cast"."""
+    nibabel = pytest.importorskip("nibabel")
+    image = nibabel.Nifti1Image(np.arange(27, dtype=np.int16).reshape(3, 3, 3), np.eye(4))
+    image.header.set_slope_inter(1e38, 0)
+    nibabel.save(image, tmp_path / "big.nii")
+    done = cli("mip", tmp_path / "big.nii", "-o", tmp_path / "big.png")
+    assert done.returncode == 2
+    assert done.stderr == (f"pointillist mip: error: volume: {tmp_path / 'big.nii'}: scl_slope 1e+38 and scl_inter 0 "
+                           "take its values beyond float32 (|x| <= 3.4e38)\n")
+    image.header.set_slope_inter(2.0, 1.0)                       # an ordinary scaling still reads
+    nibabel.save(image, tmp_path / "ok.nii")
+    from pointillist.imaging.volumes import read_nifti
+
+    assert float(np.asarray(read_nifti(tmp_path / "ok.nii").data).max()) == 2.0 * 26 + 1.0
+
+
+def test_a_lut_file_that_is_not_numbers_is_named_not_shown(cli, tmp_path):
+    """The message quoted the file's first line (``lut:file=/etc/shadow`` printed a password hash)."""
+    secret = tmp_path / "secret"
+    secret.write_text("0\n1\nroot:$6$hash:19000:0:99999:7:::\n")
+    done = cli("post", SCENES / "sun_sky.exr", "-o", tmp_path / "p.png", "--steps", f"lut:file={secret}")
+    assert done.returncode == 2 and "root:" not in done.stderr and "hash" not in done.stderr
+    assert f"{secret} is not a table of numbers (row 3 is not a number)" in done.stderr
+
+
+def test_no_more_local_workers_than_tasks(monkeypatch):
+    """``--workers 12`` for 4 tiles started 14 processes."""
+    from pointillist import distributed
+
+    started = []
+
+    class Client:
+        cluster = None
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(distributed, "start_cluster", lambda n: started.append(n) or Client())
+    with pytest.warns(UserWarning, match=r"--workers 12: only 4 task\(s\) to run; starting 4 worker\(s\)"):
+        with distributed.open_client(12, None, tasks=4):
+            pass
+    with distributed.open_client(3, None, tasks=4):
+        pass
+    assert started == [4, 3]
