@@ -59,13 +59,18 @@ class EXRImage(NamedTuple):
     layers: dict[str, np.ndarray]
 
 
-def read_exr(path: str | os.PathLike) -> EXRImage:
+def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     """Read an OpenEXR file as float32 numpy arrays.
 
     Parameters
     ----------
     path : str or path-like
         The EXR file.
+    copies : int, optional
+        How many float32 copies of the image the caller will hold at once (default 2, the reading
+        itself): the memory they take is checked against what the machine has before any pixel is
+        read (:func:`pointillist.checks.memory`), so an 8x8 file claiming a 20000 x 20000 display
+        window is a ValueError, not a MemoryError or the kernel's out-of-memory killer.
 
     Returns
     -------
@@ -147,6 +152,9 @@ def read_exr(path: str | os.PathLike) -> EXRImage:
     if count > MAX_EXR_VALUES:
         raise ValueError(f"path: {path}: display window {width} x {height} with {count} values in all, more than "
                          f"{MAX_EXR_VALUES} (2^31 - 1)")
+    # every channel framed in float32, then the image's channels stacked (2), and what the caller makes of it
+    checks.memory(count * 4 * max(int(copies), 2),
+                  f"path: {path}: its display window {width} x {height} ({count} values)")
     channels: dict[str, np.ndarray] = {}
     for part in [main] + [p for p in parts if p is not main]:
         for name, pixels in part.channels.items():
@@ -401,7 +409,7 @@ def write_png(path: str | os.PathLike, image: Any, *, srgb: bool = True, max_val
     atomic_write(path, lambda tmp: Image.fromarray(pixels).save(tmp, format="PNG"))
 
 
-def read_image(path: str | os.PathLike) -> EXRImage:
+def read_image(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     """Read an EXR (:func:`read_exr`, linear float) or another image through Pillow (PNG, JPEG, TIFF...).
 
     Non-EXR images come back with empty metadata and no layers, as float32 values:
@@ -416,6 +424,8 @@ def read_image(path: str | os.PathLike) -> EXRImage:
 
     A multi-page file (TIFF, GIF) gives its first page, as OpenCV's ``imread`` does.
 
+    ``copies``: for an EXR, as :func:`read_exr` takes it.
+
     Raises
     ------
     ValueError
@@ -424,7 +434,7 @@ def read_image(path: str | os.PathLike) -> EXRImage:
     """
     path = Path(path)
     if path.suffix.lower() == ".exr":
-        return read_exr(path)
+        return read_exr(path, copies=copies)
     if not path.is_file():
         raise ValueError(f"path: no such image file: {path}")
     import warnings

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
-           "choice", "uint32", "seed"]
+           "choice", "uint32", "seed", "available_memory", "memory"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -318,3 +318,41 @@ def seed(value: Any, name: str = "seed") -> int:
     7
     """
     return uint32(value, name)
+
+
+def available_memory() -> int:
+    """Bytes of memory this machine can give a new allocation now: Linux's ``MemAvailable`` (free
+    memory and caches it can drop), else free pages; ``2**63 - 1`` where neither is known."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, AttributeError):
+        return 2**63 - 1
+
+
+def memory(needed: int, what: str) -> None:
+    """ValueError when ``needed`` bytes are more than this machine has available
+    (:func:`available_memory`): said before allocating, instead of a MemoryError, a swap storm or a
+    crash in a library that does not check.
+
+    Examples
+    --------
+    >>> from pointillist.checks import memory
+    >>> memory(1024, "a small image")
+    >>> memory(2**62, "the film")
+    Traceback (most recent call last):
+    ...
+    ValueError: the film needs 4.6e+18 bytes (4294967296.0 GiB), more than the ... GiB of memory available
+    """
+    free = available_memory()
+    if needed > free:
+        raise ValueError(f"{what} needs {needed:.2g} bytes ({needed / 2**30:.1f} GiB), more than the "
+                         f"{free / 2**30:.1f} GiB of memory available")

@@ -469,7 +469,9 @@ def _plan_outputs(volume_path, out: Path, turntable: int | None) -> tuple[list[P
     if gif is not None and importlib.util.find_spec("imageio") is None:
         gif = None
         notes.append("imageio not installed: no GIF written")
-    Plan(inputs=[Path(volume_path)],
+    from pointillist.imaging.volumes import volume_files
+
+    Plan(inputs=volume_files(volume_path),  # the file, and those it names (an NRRD header's data file)
          outputs=[Output(name, "--output", suffixes=suffixes) for name in names]
          + ([Output(gif, "--output (GIF)")] if gif else [])).check()
     return names, gif, notes

@@ -27,6 +27,7 @@ import contextlib
 import hashlib
 import json
 import os
+import stat
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -167,7 +168,8 @@ def scene_inputs(parsed) -> list[Path]:
     and any other property whose value is the name of an existing file), resolved as Mitsuba's
     file resolver does when the scene is built (the folders of its ``<path>`` elements, then the
     scene's folder). A name that resolves to no file is left
-    out (Mitsuba reports it when the scene is built). Each file once.
+    out (Mitsuba reports it when the scene is built); one that names a device, a pipe or a socket
+    is a UsageError (reading ``/dev/zero`` as a PLY never ends). Each file once.
     """
     import mitsuba as mi
 
@@ -188,10 +190,14 @@ def scene_inputs(parsed) -> list[Path]:
                     continue
                 try:
                     resolved = Path(str(resolver.resolve(value)))
-                    if resolved.is_file():
-                        found.append(resolved)
+                    kind = resolved.stat().st_mode if resolved.exists() else 0
                 except (OSError, ValueError, RuntimeError):
                     continue
+                if stat.S_ISREG(kind):
+                    found.append(resolved)
+                elif stat.S_ISCHR(kind) or stat.S_ISBLK(kind) or stat.S_ISFIFO(kind) or stat.S_ISSOCK(kind):
+                    raise UsageError(f"scene {parsed.path}: {key} {value!r} is {resolved}, not a regular file "
+                                     "(a device, a pipe or a socket: it may never end, e.g. /dev/zero)")
     unique: dict[str, Path] = {}
     for path in found:
         unique.setdefault(os.path.realpath(path), Path(path))

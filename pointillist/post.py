@@ -23,7 +23,7 @@ from typing import Any
 from pointillist import signals
 from pointillist.errors import UsageError
 
-__all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot"]
+__all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot", "POST_COPIES"]
 
 
 @dataclass
@@ -38,6 +38,11 @@ class PostResult:
     reports: list[tuple[str, str, dict[str, float]]] = field(default_factory=list)
     plot: Path | None = None
 
+
+#: Float32 copies of an image a post run holds at its peak (measured: 2.7 GB resident for a 4000 x
+#: 4000 RGB EXR of 192 MB, the conversion to PNG; 2.1 GB with tone mapping and gamma): checked
+#: against the machine's memory before the pixels are read.
+POST_COPIES = 14
 
 def step_list() -> list[str]:
     """One line per known step: ``name (parameters): help``."""
@@ -184,7 +189,7 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     from pointillist.imaging.io import read_image, write_exr, write_png
 
     try:
-        image, metadata, _layers = read_image(source)
+        image, metadata, _layers = read_image(source, copies=POST_COPIES)
     except ValueError as error:
         raise UsageError(str(error)) from None
     dropped = []

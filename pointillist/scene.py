@@ -11,15 +11,15 @@ from pathlib import Path
 from typing import Any
 
 from pointillist import signals
-from pointillist.checks import UINT32_MAX
+from pointillist.checks import UINT32_MAX, memory
 from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
            "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count",
-           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS", "mitsuba_message",
-           "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter", "filter_note",
-           "check_sample_count"]
+           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS", "FILM_BYTES_PER_SAMPLE",
+           "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter",
+           "filter_note", "check_sample_count"]
 
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _PREFIX = re.compile(r"\[[A-Za-z0-9_]+\.(?:cpp|h|py):\d+\]\s*")
@@ -327,9 +327,11 @@ class RenderTiming:
         return asdict(self)
 
 
-def check_sample_count(width: int, height: int, spp: int) -> None:
-    """UsageError unless ``width x height`` has pixels and ``width x height x spp`` is at most
-    :data:`pointillist.checks.UINT32_MAX`.
+def check_sample_count(width: int, height: int, spp: int, channels: int = 4) -> None:
+    """UsageError unless ``width x height`` has pixels, ``width x height x spp`` is at most
+    :data:`pointillist.checks.UINT32_MAX`, the film's ``channels`` (and weights) fit one tensor, and
+    the render's memory (the film three times over, :data:`FILM_BYTES_PER_SAMPLE` a sample) is
+    available (:func:`pointillist.checks.memory`): a 30000 x 30000 film crashed Mitsuba.
 
     That many samples make one wavefront of 32-bit lanes. Above it Mitsuba splits the render into
     passes, which fails (an spp that is not a multiple of the pass count, Python integrators) or
@@ -352,6 +354,19 @@ def check_sample_count(width: int, height: int, spp: int) -> None:
     if total > UINT32_MAX:
         raise UsageError(f"spp: {width}x{height} pixels at {spp} spp is {total} samples, more than one render "
                          "takes (2^32 - 1); use fewer spp, or --tiles to split the film")
+    values = int(width) * int(height) * (int(channels) + 1)  # the film's channels and its weights
+    if values > UINT32_MAX:
+        raise UsageError(f"scene: a {width}x{height} film of {channels} channels is {values} values, more than one "
+                         "tensor holds (2^32 - 1); use a smaller film, or --tiles")
+    try:   # the film's block, the developed image and its copy, and the wavefront's sample indices
+        memory(values * 4 * 3 + total * FILM_BYTES_PER_SAMPLE, f"scene: a {width}x{height} film at {spp} spp")
+    except ValueError as error:
+        raise UsageError(f"{error}; use a smaller film or fewer spp, or --tiles") from None
+
+
+#: Bytes a render keeps per sample besides the film (its wavefront's indices, seeds and position),
+#: in :func:`check_sample_count`'s estimate of a render's memory.
+FILM_BYTES_PER_SAMPLE = 16
 
 
 @contextmanager
@@ -395,7 +410,9 @@ def timed_render(scene, *, spp: int | None = None, seed: int = 0, sensor: int = 
     sensor_obj = scene.sensors()[sensor]
     width, height = (int(v) for v in sensor_obj.film().crop_size())
     count = int(spp) if spp else int(sensor_obj.sampler().sample_count())
-    check_sample_count(width, height, count)
+    used = integrator if integrator is not None else scene.integrator()
+    aovs = len(used.aov_names()) if used is not None and hasattr(used, "aov_names") else 0
+    check_sample_count(width, height, count, int(sensor_obj.film().base_channels_count()) + aovs)
     check = getattr(sensor_obj.sampler(), "check_render", None)  # a sampler's own limits (zsobol's Morton index)
     if check is not None:
         try:

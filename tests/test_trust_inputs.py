@@ -6,6 +6,7 @@ echo a file, more workers than tasks)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -152,3 +153,88 @@ def test_no_more_local_workers_than_tasks(monkeypatch):
     with distributed.open_client(3, None, tasks=4):
         pass
     assert started == [4, 3]
+
+
+def test_a_scene_file_naming_a_device_is_refused(cli, tmp_path):
+    """A PLY named /dev/zero read until 4.3 GB."""
+    (tmp_path / "dev.xml").write_text(FILTER_SCENE.format(rfilter="").replace(
+        '<shape type="sphere"/>', '<shape type="ply"><string name="filename" value="/dev/zero"/></shape>'))
+    done = cli("render", tmp_path / "dev.xml", "-o", tmp_path / "d.exr", timeout=60)
+    assert done.returncode == 2 and "filename '/dev/zero' is /dev/zero, not a regular file" in done.stderr
+    os.mkfifo(tmp_path / "pipe.ply")
+    (tmp_path / "fifo.xml").write_text(FILTER_SCENE.format(rfilter="").replace(
+        '<shape type="sphere"/>', '<shape type="ply"><string name="filename" value="pipe.ply"/></shape>'))
+    done = cli("render", tmp_path / "fifo.xml", "-o", tmp_path / "f.exr", timeout=60)
+    assert done.returncode == 2 and "not a regular file (a device, a pipe or a socket" in done.stderr
+
+
+def test_films_beyond_one_tensor_or_the_memory_are_refused_before_the_render(cli, tmp_path):
+    """A 30000 x 30000 film segfaulted (nothing printed); a 2147483647 x 1 film failed inside Mitsuba."""
+    from pointillist.checks import available_memory
+
+    scene = FILTER_SCENE.format(rfilter="").replace('value="8"/><integer name="height" value="8"',
+                                                    'value="$w"/><integer name="height" value="$h"').replace(
+        "</film>", '</film><sampler type="independent"><integer name="sample_count" value="1"/></sampler>')
+    (tmp_path / "s.xml").write_text(scene)
+    done = cli("render", tmp_path / "s.xml", "-D", "w=2147483647", "-D", "h=1", "-o", tmp_path / "a.exr")
+    assert done.returncode == 2 and "more than one tensor holds (2^32 - 1)" in done.stderr, done.stderr
+    side = int((available_memory() / 12 / 5) ** 0.5) + 1000   # film x 3 copies x (3 colours + weight + alpha)
+    done = cli("render", tmp_path / "s.xml", "-D", f"w={side}", "-D", f"h={side}", "-o", tmp_path / "b.exr")
+    assert done.returncode == 2 and "GiB of memory available" in done.stderr, done.stderr
+    assert list(p.name for p in tmp_path.iterdir()) == ["s.xml"]
+
+
+def test_an_exr_whose_display_window_needs_more_memory_than_there_is(tmp_path, cli):
+    """8x8 pixels in a 20000 x 20000 display window asked for gigabytes (MemoryError, or the kernel's
+    out-of-memory killer) in post and compare --reference."""
+    import OpenEXR
+
+    from pointillist.checks import available_memory
+    from pointillist.post import POST_COPIES
+
+    side = int((available_memory() / 4 / POST_COPIES / 3) ** 0.5) + 1000
+    if side * side * 3 > 2**31 - 1:
+        pytest.skip("this machine has the memory for any EXR read can make (2^31 - 1 values)")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "dataWindow": ((0, 0), (7, 7)), "displayWindow": ((0, 0), (side - 1, side - 1))}
+    with OpenEXR.File(header, {"RGB": np.ones((8, 8, 3), np.float32)}) as exr:
+        exr.write(str(tmp_path / "window.exr"))
+    done = cli("post", tmp_path / "window.exr", "-o", tmp_path / "w.png")
+    assert done.returncode == 2 and f"its display window {side} x {side}" in done.stderr, done.stderr
+    assert "GiB of memory available" in done.stderr and len(done.stderr.splitlines()) == 1
+
+
+def test_memory_check_says_what_needs_how_much():
+    from pointillist.checks import available_memory, memory
+
+    free = available_memory()
+    assert 0 < free < 2**63 - 1
+    memory(free // 2, "half")
+    with pytest.raises(ValueError, match=r"^the film needs .* bytes \(.* GiB\), more than the .* GiB of memory"):
+        memory(free * 2, "the film")
+
+
+def test_an_nrrd_data_file_is_an_input_and_one_outside_its_folder_is_said(cli, tmp_path):
+    """mip head.nhdr -o X where the header's data file is X overwrote it, exit 0."""
+    pytest.importorskip("nrrd")
+    raw = np.arange(64, dtype=np.uint8).tobytes()
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "out.png").write_bytes(raw)
+    (tmp_path / "data" / "head.nhdr").write_text("NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 4\n"
+                                                 "encoding: raw\ndata file: out.png\n")
+    done = cli("mip", tmp_path / "data" / "head.nhdr", "-o", tmp_path / "data" / "out.png")
+    assert done.returncode == 2 and "refusing to overwrite the input file" in done.stderr
+    assert (tmp_path / "data" / "out.png").read_bytes() == raw
+    (tmp_path / "outside.raw").write_bytes(raw)
+    (tmp_path / "data" / "up.nhdr").write_text("NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 4\n"
+                                               "encoding: raw\ndata file: ../outside.raw\n")
+    done = cli("mip", tmp_path / "data" / "up.nhdr", "-o", tmp_path / "up.png")
+    assert done.returncode == 0, done.stderr
+    assert "outside.raw lies outside the header's folder" in done.stderr
+
+    from pointillist.imaging.volumes import volume_files
+
+    with pytest.warns(UserWarning, match="outside the header's folder"):
+        assert volume_files(tmp_path / "data" / "up.nhdr") == [tmp_path / "data" / "up.nhdr",
+                                                               tmp_path / "data" / ".." / "outside.raw"]
+    assert volume_files(SCENES / "phantom64.vol") == [SCENES / "phantom64.vol"]

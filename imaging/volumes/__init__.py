@@ -28,7 +28,7 @@ from pointillist.imaging.volumes import formats  # noqa: F401 - registers every 
 from pointillist.imaging.volumes._model import OrientationWarning, Volume
 from pointillist.imaging.volumes._phantom import SHEPP_LOGAN_HU, shepp_logan_phantom
 from pointillist.imaging.volumes._registry import (VolumeReader, load_volume, reader_table, register,
-                                                   volume_formats, volume_readers)
+                                                   volume_files, volume_formats, volume_readers)
 from pointillist.imaging.volumes._texture import VolumeTexture, volume_texture
 from pointillist.imaging.volumes.formats.dicom import read_dicom_series
 from pointillist.imaging.volumes.formats.nifti import read_nifti
@@ -41,5 +41,5 @@ __doc__ = __doc__.replace("READER_TABLE", reader_table())
 __all__ = [
     "Volume", "load_volume", "read_vol", "write_vol", "read_npy", "read_nrrd", "read_nifti",
     "read_dicom_series", "OrientationWarning", "shepp_logan_phantom", "volume_texture", "VolumeTexture",
-    "SHEPP_LOGAN_HU", "VolumeReader", "register", "volume_readers", "volume_formats",
+    "SHEPP_LOGAN_HU", "VolumeReader", "register", "volume_readers", "volume_formats", "volume_files",
 ]

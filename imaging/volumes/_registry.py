@@ -51,6 +51,9 @@ class VolumeReader:
         The reader reads a folder; a file with one of its suffixes stands for its folder.
     order : int
         Place in every list (the error message, the table, ``mip -h``).
+    files : callable, optional
+        ``files(path) -> list of Path``: the other files a volume file names and its reading reads
+        (an NRRD header's detached data file), inputs of a command's plan like the file itself.
     """
 
     name: str
@@ -62,6 +65,7 @@ class VolumeReader:
     options: tuple[str, ...] = ()
     folder: bool = False
     order: int = 100
+    files: Callable[[Path], list[Path]] | None = None
 
 
 _READERS: dict[str, VolumeReader] = {}
@@ -77,6 +81,16 @@ def register(reader: VolumeReader) -> VolumeReader:
             raise ValueError(f"suffix: {suffix} is already read by the {other.label} reader")
     _READERS[reader.label] = reader
     return reader
+
+
+def volume_files(path: str | os.PathLike) -> list[Path]:
+    """Every file reading the volume ``path`` reads: the file itself, then the files it names (its
+    reader's ``files``: an NRRD header's detached data file). A command's plan takes them all as
+    inputs, so that none is ever written over."""
+    path = Path(path)
+    reader = _reader_for(path.name.lower())
+    extra = reader.files(path) if reader is not None and reader.files is not None and path.is_file() else []
+    return [path, *extra]
 
 
 def volume_readers() -> tuple[VolumeReader, ...]:

@@ -278,7 +278,7 @@ def _check_reference(reference: Path, size: tuple[int, int], *, what: str = "--r
     from pointillist.imaging.io import read_exr
 
     try:
-        exr = read_exr(reference)
+        exr = read_exr(reference, copies=8)  # the reference, its FLIP and error maps beside each render's
     except ValueError as error:
         raise UsageError(f"{what}: {error}") from None
     image = exr.image

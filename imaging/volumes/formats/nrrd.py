@@ -12,7 +12,7 @@ from pointillist.errors import one_line
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
 from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
-__all__ = ["read_nrrd"]
+__all__ = ["read_nrrd", "nrrd_data_files"]
 
 #: NRRD ``space`` values (full names and abbreviations of the NRRD spec) -> signs taking them to LPS.
 _NRRD_SPACES = {
@@ -155,5 +155,27 @@ def _nrrd_directions(value: Any, spacings: Any) -> tuple[np.ndarray | None, str 
     return None, f"NRRD 'space directions' give {given}"
 
 
+def nrrd_data_files(path: Path) -> list[Path]:
+    """The detached data file an NRRD header names (``data file``), resolved as pynrrd resolves it
+    (against the header's folder); none for data inside the file, or a header that does not read
+    (its reading reports that). A data file outside the header's folder (an absolute name, ``..``)
+    is said in a warning: a header can point a command at any file."""
+    nrrd = optional_package("nrrd", "NRRD", "pynrrd")
+    try:
+        header = nrrd.read_header(str(path))
+    except Exception:  # noqa: BLE001 - reading the volume reports it
+        return []
+    name = header.get("data file") or header.get("datafile")
+    if not name or not str(name).strip():
+        return []
+    data = Path(str(name).strip())
+    data = data if data.is_absolute() else path.parent / data
+    inside = os.path.realpath(path.parent)
+    if os.path.commonpath([inside, os.path.realpath(data)]) != inside:
+        _warn(f"volume: {path}: its data file {data} lies outside the header's folder")
+    return [data]
+
+
 register(VolumeReader(name="NRRD", label="NRRD", suffixes=(".nrrd", ".nhdr"), read=read_nrrd,
-                      spacing_from="``space directions`` or ``spacings``", needs="pynrrd", order=30))
+                      spacing_from="``space directions`` or ``spacings``", needs="pynrrd", order=30,
+                      files=nrrd_data_files))
