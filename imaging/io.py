@@ -109,6 +109,7 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     """
     import OpenEXR
 
+    copies = checks.integer(copies, "copies", low=1)
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"path: no such EXR file: {path}")
@@ -432,6 +433,7 @@ def read_image(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
         For a missing or unreadable file, or one larger than Pillow's decompression-bomb limit
         (twice ``PIL.Image.MAX_IMAGE_PIXELS``).
     """
+    copies = checks.integer(copies, "copies", low=1)
     path = Path(path)
     if path.suffix.lower() == ".exr":
         return read_exr(path, copies=copies)

@@ -17,7 +17,7 @@ from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
            "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count",
-           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS", "FILM_BYTES_PER_SAMPLE",
+           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS",
            "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter",
            "filter_note", "check_sample_count"]
 
@@ -330,8 +330,8 @@ class RenderTiming:
 def check_sample_count(width: int, height: int, spp: int, channels: int = 4) -> None:
     """UsageError unless ``width x height`` has pixels, ``width x height x spp`` is at most
     :data:`pointillist.checks.UINT32_MAX`, the film's ``channels`` (and weights) fit one tensor, and
-    the render's memory (the film three times over, :data:`FILM_BYTES_PER_SAMPLE` a sample) is
-    available (:func:`pointillist.checks.memory`): a 30000 x 30000 film crashed Mitsuba.
+    the render's memory (the film three times over) is available
+    (:func:`pointillist.checks.memory`): a 30000 x 30000 film crashed Mitsuba.
 
     That many samples make one wavefront of 32-bit lanes. Above it Mitsuba splits the render into
     passes, which fails (an spp that is not a multiple of the pass count, Python integrators) or
@@ -358,15 +358,11 @@ def check_sample_count(width: int, height: int, spp: int, channels: int = 4) -> 
     if values > UINT32_MAX:
         raise UsageError(f"scene: a {width}x{height} film of {channels} channels is {values} values, more than one "
                          "tensor holds (2^32 - 1); use a smaller film, or --tiles")
-    try:   # the film's block, the developed image and its copy, and the wavefront's sample indices
-        memory(values * 4 * 3 + total * FILM_BYTES_PER_SAMPLE, f"scene: a {width}x{height} film at {spp} spp")
+    try:   # the film's block, the developed image and its copy (the samples are not kept: a render's
+        # peak memory measured the same at 64 and 1024 spp)
+        memory(values * 4 * 3, f"scene: a {width}x{height} film")
     except ValueError as error:
-        raise UsageError(f"{error}; use a smaller film or fewer spp, or --tiles") from None
-
-
-#: Bytes a render keeps per sample besides the film (its wavefront's indices, seeds and position),
-#: in :func:`check_sample_count`'s estimate of a render's memory.
-FILM_BYTES_PER_SAMPLE = 16
+        raise UsageError(f"{error}; use a smaller film, or --tiles") from None
 
 
 @contextmanager

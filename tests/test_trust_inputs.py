@@ -178,7 +178,7 @@ def test_films_beyond_one_tensor_or_the_memory_are_refused_before_the_render(cli
     (tmp_path / "s.xml").write_text(scene)
     done = cli("render", tmp_path / "s.xml", "-D", "w=2147483647", "-D", "h=1", "-o", tmp_path / "a.exr")
     assert done.returncode == 2 and "more than one tensor holds (2^32 - 1)" in done.stderr, done.stderr
-    side = int((available_memory() / 12 / 5) ** 0.5) + 1000   # film x 3 copies x (3 colours + weight + alpha)
+    side = int((available_memory() / 12 / 4) ** 0.5) + 1000   # film x 3 copies x 4 bytes x (3 colours + weight)
     done = cli("render", tmp_path / "s.xml", "-D", f"w={side}", "-D", f"h={side}", "-o", tmp_path / "b.exr")
     assert done.returncode == 2 and "GiB of memory available" in done.stderr, done.stderr
     assert list(p.name for p in tmp_path.iterdir()) == ["s.xml"]
