@@ -21,10 +21,19 @@ def setup(variant: str = "llvm_ad_rgb", *, plugins: bool = True):
     Returns the ``mitsuba`` module. With ``plugins=False`` the plugins are not registered (yet):
     enough to parse a scene (about a third less start-up), not to build one that uses them; a
     later ``setup()`` registers them. Raises :class:`pointillist.llvm.LLVMNotFoundError`
-    when no usable libLLVM exists and ValueError for an unknown variant.
+    when no usable libLLVM exists, ValueError for an unknown variant, and
+    :class:`pointillist.errors.UsageError` when the current folder no longer exists.
     """
+    import os
+
+    from pointillist.errors import UsageError
     from pointillist.llvm import ensure_llvm
 
+    try:  # Mitsuba's file resolver starts from the current folder: its import fails without one
+        os.getcwd()
+    except FileNotFoundError:
+        raise UsageError("the current folder no longer exists (it was deleted or moved); change to an existing "
+                         "folder first") from None
     ensure_llvm()
     import mitsuba as mi
 

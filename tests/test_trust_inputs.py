@@ -238,3 +238,19 @@ def test_an_nrrd_data_file_is_an_input_and_one_outside_its_folder_is_said(cli, t
         assert volume_files(tmp_path / "data" / "up.nhdr") == [tmp_path / "data" / "up.nhdr",
                                                                tmp_path / "data" / ".." / "outside.raw"]
     assert volume_files(SCENES / "phantom64.vol") == [SCENES / "phantom64.vol"]
+
+
+@pytest.mark.parametrize("command", ["render", "mip"])
+def test_a_deleted_current_folder_is_said_in_one_line(tmp_path, command):
+    """It was "internal error: ImportError" (and an abort with POINTILLIST_DEBUG=1): Mitsuba's file
+    resolver starts from the current folder."""
+    args = {"render": f"render {SCENES / 'default.xml'} -D res=8 -o {tmp_path / 'r.exr'}",
+            "mip": f"mip {SCENES / 'phantom64.vol'} -o {tmp_path / 'm.png'}"}[command]
+    gone = tmp_path / "gone"
+    script = f"mkdir {gone} && cd {gone} && rmdir {gone} && exec {sys.executable} -m pointillist {args}"
+    for debug in ("", "1"):
+        done = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=300,
+                              env=dict(os.environ, POINTILLIST_DEBUG=debug))
+        assert done.returncode == 2, done.stderr
+        assert done.stderr == (f"pointillist {command}: error: the current folder no longer exists (it was deleted "
+                               "or moved); change to an existing folder first\n")
