@@ -36,9 +36,10 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
-import pickle
 import re
+import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,7 @@ from pointillist.errors import UsageError
 
 __all__ = [
     "DEFAULT_RETRIES",
+    "register_result_type",
     "CACHE_FORMAT",
     "setup_process",
     "PointillistWorker",  # noqa: F822 - made on first use (module __getattr__)
@@ -68,7 +70,7 @@ __all__ = [
 DEFAULT_RETRIES = 2
 
 #: Version of the cache file layout and key scheme; bump to invalidate caches.
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 
 
 # --------------------------------------------------------------------------- workers and clients
@@ -254,48 +256,146 @@ def json_key(value: Any) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=json_default).encode()).hexdigest()
 
 
-class ResultCache:
-    """Task results on disk, one pickle file per key in ``directory``.
+#: Classes a :class:`ResultCache` file may hold (``module:name`` -> class; :func:`register_result_type`).
+_RESULT_TYPES: dict[str, type] = {}
 
-    Writes are atomic (temporary file, then rename), so a command killed
-    mid-write leaves no half file; a file that cannot be read counts as
-    missing. The files are pickles: only point this at your own folder.
+
+def register_result_type(cls: type) -> type:
+    """Let :class:`ResultCache` store and read back instances of the dataclass ``cls`` (its fields
+    are stored as data); usable as a class decorator. Only registered classes are ever rebuilt
+    from a cache file: a file naming another class counts as missing."""
+    import dataclasses
+
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"cls: expected a dataclass, got {cls!r}")
+    _RESULT_TYPES[f"{cls.__module__}:{cls.__qualname__}"] = cls
+    return cls
+
+
+class ResultCache:
+    """Task results on disk as data, one ``.npz`` file per key in ``directory``.
+
+    A result (numbers, strings, lists, tuples, dicts with string keys, numpy arrays, and
+    dataclasses registered with :func:`register_result_type`) is stored as numpy arrays and one JSON
+    description with the SHA-256 of its contents, read back with ``allow_pickle=False``: a cache
+    file is never unpickled or executed, so a shared cache folder (a cluster's) cannot make a render
+    run code. A file that does not read, whose digest does not match, or that names an
+    unregistered class counts as missing (its task runs again); files of another kind in the folder
+    (``*.pkl``) are ignored, with one warning. Writes are atomic (temporary file, then rename).
     """
+
+    SUFFIX = ".npz"
 
     def __init__(self, directory: str | os.PathLike):
         self.directory = Path(directory)
         if self.directory.exists() and not self.directory.is_dir():
             raise ValueError(f"cache: {self.directory} exists and is not a folder")
         self.directory.mkdir(parents=True, exist_ok=True)
+        foreign = sorted(p.name for p in self.directory.iterdir() if p.is_file() and p.suffix != self.SUFFIX
+                         and not p.name.startswith("."))
+        if foreign:
+            import warnings
+
+            warnings.warn(f"cache: {self.directory}: ignoring {len(foreign)} file(s) that are not pointillist's "
+                          f"results ({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}); "
+                          "cache files are data, never pickles", stacklevel=2)
 
     def path(self, key: str) -> Path:
         if not re.fullmatch(r"[0-9A-Za-z_.-]+", key):
             raise ValueError(f"key: expected letters, digits, '_', '-', '.', got {key!r}")
-        return self.directory / f"{key}.pkl"
+        return self.directory / f"{key}{self.SUFFIX}"
 
     def get(self, key: str, default=None):
-        """The cached result for ``key``, or ``default`` if missing or unreadable."""
+        """The cached result for ``key``, or ``default`` if missing, unreadable or not intact."""
         try:
-            with open(self.path(key), "rb") as handle:
-                return pickle.load(handle)
-        except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, ValueError):
+            with np.load(self.path(key), allow_pickle=False) as data:
+                arrays = {name: data[name] for name in data.files}
+            description = str(arrays.pop("__result__"))
+            digest = str(arrays.pop("__sha256__"))
+            if digest != _result_digest(description, arrays):
+                return default
+            return _decode(json.loads(description), arrays)
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
             return default
 
     def __contains__(self, key: str) -> bool:
         return self.path(key).is_file()
 
     def put(self, key: str, result) -> None:
-        """Store ``result`` under ``key`` (atomically)."""
+        """Store ``result`` under ``key`` (atomically); TypeError for a value that is not data."""
         from pointillist.files import atomic_write
+
+        arrays: dict[str, np.ndarray] = {}
+        description = json.dumps(_encode(result, arrays), sort_keys=True)
 
         def write(tmp: str) -> None:
             with open(tmp, "wb") as handle:
-                pickle.dump(result, handle, protocol=pickle.HIGHEST_PROTOCOL)
+                np.savez(handle, __result__=np.array(description), __sha256__=np.array(
+                    _result_digest(description, arrays)), **arrays)
 
         atomic_write(self.path(key), write)
 
     def __len__(self) -> int:
-        return sum(1 for _ in self.directory.glob("*.pkl"))
+        return sum(1 for _ in self.directory.glob(f"*{self.SUFFIX}"))
+
+
+def _result_digest(description: str, arrays: dict[str, np.ndarray]) -> str:
+    digest = hashlib.sha256(description.encode())
+    for name in sorted(arrays):
+        array = np.ascontiguousarray(arrays[name])
+        digest.update(f"\0{name}:{array.dtype.str}:{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def _encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """``value`` as JSON, its numpy arrays moved into ``arrays`` (by name)."""
+    import dataclasses
+
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, np.bool_):
+        number = value.item() if isinstance(value, np.generic) else value
+        return number if not isinstance(number, float) or math.isfinite(number) else {"__float__": repr(number)}
+    if isinstance(value, np.ndarray):
+        if value.dtype.hasobject:
+            raise TypeError("result: a numpy array of Python objects is not data")
+        name = f"a{len(arrays)}"
+        arrays[name] = value
+        return {"__array__": name}
+    if isinstance(value, (list, tuple)):
+        items = [_encode(item, arrays) for item in value]
+        return items if isinstance(value, list) else {"__tuple__": items}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("result: dict keys must be strings")
+        return {"__dict__": {k: _encode(v, arrays) for k, v in value.items()}}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        name = f"{type(value).__module__}:{type(value).__qualname__}"
+        if _RESULT_TYPES.get(name) is not type(value):
+            raise TypeError(f"result: {name} is not a registered result type (register_result_type)")
+        return {"__dataclass__": name, "fields": {f.name: _encode(getattr(value, f.name), arrays)
+                                                  for f in dataclasses.fields(value)}}
+    raise TypeError(f"result: cannot store a {type(value).__name__} as data")
+
+
+def _decode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    if isinstance(value, list):
+        return [_decode(item, arrays) for item in value]
+    if not isinstance(value, dict):
+        return value
+    if "__array__" in value:
+        return arrays[value["__array__"]]
+    if "__float__" in value:
+        return float(value["__float__"])
+    if "__tuple__" in value:
+        return tuple(_decode(item, arrays) for item in value["__tuple__"])
+    if "__dict__" in value:
+        return {k: _decode(v, arrays) for k, v in value["__dict__"].items()}
+    if "__dataclass__" in value:
+        cls = _RESULT_TYPES[value["__dataclass__"]]  # KeyError: an unregistered class is not rebuilt
+        return cls(**{k: _decode(v, arrays) for k, v in value["fields"].items()})
+    raise ValueError("result: an unknown entry")
 
 _MISSING = object()
 

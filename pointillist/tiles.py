@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from pointillist import checks
-from pointillist.distributed import DEFAULT_RETRIES, ResultCache, run_tasks, setup_process
+from pointillist.distributed import DEFAULT_RETRIES, ResultCache, register_result_type, run_tasks, setup_process
 from pointillist.errors import UsageError
 
 __all__ = [
@@ -141,6 +141,7 @@ def tile_seed(seed: int, index: int, count: int) -> int:
 
 
 # --------------------------------------------------------------------------- render tasks
+@register_result_type
 @dataclasses.dataclass(frozen=True)
 class RenderTask:
     """One render: what :func:`render_task` needs, picklable and hashable.
@@ -202,6 +203,7 @@ class RenderTask:
             token["inputs_sha256"] = scene_digest(self.scene, dict(self.params))
         return token
 
+@register_result_type
 @dataclasses.dataclass
 class RenderResult:
     """What :func:`render_task` returns.

@@ -272,8 +272,8 @@ def test_run_tasks_serial_cache_redoes_only_missing(mi, tmp_path):
     stats = {}
     first = run_tasks(counted, tasks, cache=cache, keys=keys, progress=False, stats=stats)
     assert calls == [0, 1, 2, 3] and stats == {"cached": 0, "computed": 4} and len(cache) == 4
-    (tmp_path / "cache" / f"{keys[2]}.pkl").unlink()  # lost one result
-    (tmp_path / "cache" / f"{keys[0]}.pkl").write_bytes(b"\x80\x05 truncated")  # a corrupt one
+    (tmp_path / "cache" / f"{keys[2]}.npz").unlink()  # lost one result
+    (tmp_path / "cache" / f"{keys[0]}.npz").write_bytes(b"\x80\x05 truncated")  # a corrupt one
     calls.clear()
     again = run_tasks(counted, tasks, cache=cache, keys=keys, progress=False, stats=stats)
     assert sorted(calls) == [0, 2] and stats == {"cached": 2, "computed": 2}
@@ -387,7 +387,7 @@ def test_render_cli_tiles_workers_and_cache(cli, tmp_path, mi):
     expected = render_tiled(DEFAULT, {"res": "20"}, tiles=(2, 3), spp=4, seed=2, progress=False).image
     np.testing.assert_allclose(a.image, expected, rtol=1e-5, atol=1e-6)
     # A rerun with the cache renders nothing; a deleted tile is rendered again.
-    next((tmp_path / "cache").glob("*.pkl")).unlink()
+    next((tmp_path / "cache").glob("*.npz")).unlink()
     proc = cli("render", *common, "-o", serial, "--cache", tmp_path / "cache")
     assert proc.returncode == 0 and "5 of 6 tiles from the cache" in proc.stdout, proc.stdout + proc.stderr
     np.testing.assert_array_equal(read_exr(serial).image, a.image)

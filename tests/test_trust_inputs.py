@@ -254,3 +254,44 @@ def test_a_deleted_current_folder_is_said_in_one_line(tmp_path, command):
         assert done.returncode == 2, done.stderr
         assert done.stderr == (f"pointillist {command}: error: the current folder no longer exists (it was deleted "
                                "or moved); change to an existing folder first\n")
+
+
+def test_the_result_cache_holds_data_and_never_unpickles(tmp_path, mi):
+    """The tile cache and the Dask result cache were pickle files: a planted .pkl ran a shell command
+    on the next render. Results are now numpy arrays and JSON with their SHA-256."""
+    import pickle
+
+    from pointillist.distributed import ResultCache
+    from pointillist.tiles import RenderResult, RenderTask
+
+    ran = tmp_path / "ran"
+
+    class Planted:
+        def __reduce__(self):
+            return (os.system, (f"touch {ran}",))
+
+    cache = ResultCache(tmp_path / "cache")
+    result = RenderResult(image=np.arange(12, dtype=np.float32).reshape(2, 2, 3),
+                          timing={"total": 0.5, "compile": float("nan")}, worker="host:1",
+                          task=RenderTask("s.xml", (("res", "8"),), spp=4, seed=7, crop=(0, 0, 2, 2)))
+    cache.put("k1", result)
+    back = cache.get("k1")
+    assert back.task == result.task and back.worker == "host:1" and back.timing["total"] == 0.5
+    assert np.isnan(back.timing["compile"]) and np.array_equal(back.image, result.image)
+    assert back.image.dtype == np.float32
+    # a planted pickle under a key's name, and under the cache's own suffix
+    (tmp_path / "cache" / "k2.pkl").write_bytes(pickle.dumps(Planted()))
+    (tmp_path / "cache" / "k3.npz").write_bytes(pickle.dumps(Planted()))
+    with pytest.warns(UserWarning, match=r"ignoring 1 file\(s\) that are not pointillist's results \(k2.pkl\)"):
+        again = ResultCache(tmp_path / "cache")
+    assert again.get("k2") is None and again.get("k3") is None and not ran.exists()
+    # a result changed on disk (its digest no longer matches), or naming a class nobody registered
+    with np.load(tmp_path / "cache" / "k1.npz", allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    arrays["a0"] = arrays["a0"] + 1
+    np.savez(tmp_path / "cache" / "k4.npz", **arrays)
+    description = str(arrays["__result__"]).replace("pointillist.tiles:RenderResult", "os:system")
+    np.savez(tmp_path / "cache" / "k5.npz", **dict(arrays, __result__=np.array(description)))
+    assert again.get("k4") is None and again.get("k5") is None
+    with pytest.raises(TypeError, match="cannot store a Planted as data"):
+        cache.put("k6", Planted())
