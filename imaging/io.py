@@ -95,7 +95,9 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     Nuke and ``oiiotool --croptofull`` do), whatever the data window: pixels of the display
     window outside the data window are 0 (alpha too), and data outside the display window
     (overscan) is left out. OpenCV's ``imread`` returns the data window instead, without its
-    offset. Every part is framed by the image part's display window.
+    offset. Every part is framed by the image part's display window; a data window wholly outside
+    it (nothing to show) is a ValueError, as are luminance-chroma files (``Y``, ``RY``, ``BY``) and
+    files whose only channel is ``A``.
 
     Examples
     --------
@@ -139,9 +141,13 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
             raise ValueError(f"path: {path}: its pixel data cannot be read, a damaged or truncated file "
                              f"({one_line(lines[0])})")
         raise ValueError(f"path: {path} holds no channels")
+    chroma = next((p for p in parts if {"RY", "BY"} & p.channels.keys()), None)
+    if chroma is not None and not {"R", "G", "B"} <= chroma.channels.keys():
+        raise ValueError(f"path: {path} stores luminance and chroma (Y, RY, BY: OpenEXR's lossy colour encoding), "
+                         "which is not read as colour here; convert it to RGB first (e.g. oiiotool IN -o OUT)")
     main = next((p for p in parts if {"R", "G", "B"} <= p.channels.keys()), None) \
         or next((p for p in parts if "Y" in p.channels), None) \
-        or next((p for p in parts if len(p.channels) == 1), None)
+        or next((p for p in parts if len(p.channels) == 1 and "A" not in p.channels), None)
     if main is None:
         names = sorted(f"{p.name}.{c}" if len(parts) > 1 else c for p in parts for c in p.channels)
         raise ValueError(f"path: {path} has no Y or RGB channels (has {names})")
@@ -149,6 +155,10 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     width, height = frame[2] - frame[0] + 1, frame[3] - frame[1] + 1
     if width < 1 or height < 1:
         raise ValueError(f"path: {path}: empty display window {frame} (xmin, ymin, xmax, ymax)")
+    data = main.data or frame
+    if data[0] > frame[2] or data[2] < frame[0] or data[1] > frame[3] or data[3] < frame[1]:
+        raise ValueError(f"path: {path}: its data window {data} lies wholly outside its display window {frame} "
+                         "(xmin, ymin, xmax, ymax): the image would hold none of its pixels")
     count = width * height * sum(len(p.channels) for p in parts)
     if count > MAX_EXR_VALUES:
         raise ValueError(f"path: {path}: display window {width} x {height} with {count} values in all, more than "

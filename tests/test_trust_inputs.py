@@ -295,3 +295,33 @@ def test_the_result_cache_holds_data_and_never_unpickles(tmp_path, mi):
     assert again.get("k4") is None and again.get("k5") is None
     with pytest.raises(TypeError, match="cannot store a Planted as data"):
         cache.put("k6", Planted())
+
+
+@pytest.mark.parametrize("channels, extra, message", [
+    ({"Y": 1.0, "RY": 0.0, "BY": 0.0}, {}, "stores luminance and chroma (Y, RY, BY"),
+    ({"A": 1.0}, {}, "has no Y or RGB channels (has ['A'])"),
+    ({"R": 1.0, "G": 1.0, "B": 1.0}, {"dataWindow": ((100, 100), (103, 103)), "displayWindow": ((0, 0), (7, 7))},
+     "its data window (100, 100, 103, 103) lies wholly outside its display window (0, 0, 7, 7)"),
+])
+def test_exrs_that_would_be_read_wrongly_are_refused(tmp_path, cli, channels, extra, message):
+    """An EXR with Y/RY/BY channels was read as grey, one with only A was processed as the image, and a
+    data window outside the display window gave an all-black image without a word."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **extra}
+    with OpenEXR.File(header, {name: np.full((4, 4), value, np.float32) for name, value in channels.items()}) as exr:
+        exr.write(str(tmp_path / "in.exr"))
+    done = cli("post", tmp_path / "in.exr", "-o", tmp_path / "out.png")
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
+
+
+def test_results_md_shows_a_scene_name_as_text(cli, tmp_path):
+    """results.md's heading carried a scene name's raw HTML."""
+    name = "<img src=x onerror=alert(1)>`*_.xml"
+    (tmp_path / name).write_bytes((SCENES / "edges.xml").read_bytes())
+    done = cli("compare", tmp_path / name, "--samplers", "jitter", "--spp", "1", "--reference-spp", "2",
+               "-D", "res=8", "--out", tmp_path / "cmp")
+    assert done.returncode == 0, done.stderr
+    text = (tmp_path / "cmp" / "results.md").read_text()
+    assert text.splitlines()[0] == r"# Sampler comparison: &lt;img src=x onerror=alert\(1\)&gt;\`\*\_.xml"
+    assert f"Scene `` {tmp_path / name} ``" in text   # a code span: shown as text, whatever it holds

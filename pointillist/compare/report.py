@@ -92,13 +92,30 @@ def _markdown(rows: Sequence[dict[str, Any]], fitted: dict[str, dict[str, float]
             + _slopes_section(rows, fitted, timed) + _equal_time_section(timed) + _equal_error_section(timed))
 
 
+def _md_text(text: str) -> str:
+    """``text`` shown as itself in Markdown: HTML tags and entities, and Markdown's own marks, escaped
+    (a scene file may be named ``<img src=x onerror=...>.xml``)."""
+    import html
+    import re
+
+    return re.sub(r"([\\`*_{}\[\]()#+!|~>-])", r"\\\1", html.escape(text, quote=False))
+
+
+def _md_code(text: str) -> str:
+    """``text`` as a Markdown code span, whatever backticks it holds (the fence is one longer)."""
+    import re
+
+    fence = "`" * (max((len(run) for run in re.findall(r"`+", text)), default=0) + 1)
+    return f"{fence} {text} {fence}" if "`" in text else f"{fence}{text}{fence}"
+
+
 def _table_section(rows: Sequence[dict[str, Any]], timed: Sequence[dict[str, Any]], *, scene: str, reference: str,
                    title: str | None, notes: Sequence[str]) -> list[str]:
     """results.md's title, caption, notes and results table, and what its marks mean."""
     floor = format_time(TIMING_FLOOR)
     header, cells = results_table(rows)
-    lines = [f"# {title or 'Sampler comparison'}", "",
-             f"Scene `{scene}`, reference `{reference}`. Errors against the reference; time = render "
+    lines = [f"# {_md_text(title or 'Sampler comparison')}", "",
+             f"Scene {_md_code(scene)}, reference {_md_code(reference)}. Errors against the reference; time = render "
              "wall time without JIT compilation (compile listed apart); mean ± standard deviation "
              "over seeds. relMSE uses epsilon 0.01; FLIP is HDR-FLIP; low-freq MSE is the part of the "
              "luminance error's mean square at spatial frequencies up to a quarter of Nyquist (1/8 cycle "
