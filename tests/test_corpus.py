@@ -130,6 +130,24 @@ def test_a_scene_whose_mitsuba_image_varies_between_loads(mi, monkeypatch):
         f"{differential.REPEATS + 1} loads), pointillist's is none of them)")
 
 
+def test_pointillists_first_load_may_be_the_rare_variant(mi, monkeypatch):
+    """Mitsuba's loads may all give the common image while pointillist's one load gave the rare one:
+    pointillist renders again before the check says they differ."""
+    from pointillist.imaging import io
+    from pointillist.differential import check_scene
+
+    real, reads = io.read_exr, []
+
+    def first_read_differs(path, **kwargs):
+        exr = real(path, **kwargs)
+        reads.append(1)
+        return exr._replace(image=exr.image * np.float32(1.5)) if len(reads) == 1 else exr
+
+    monkeypatch.setattr(io, "read_exr", first_read_differs)
+    report = check_scene(CORPUS / "include_defaults_refs.xml", steps=["mitsuba"])
+    assert report.ok and "pointillist's first load gave another one" in report.checks[0].detail, report.checks
+
+
 def test_verify_command_reports_each_scene_and_a_crash(cli, tmp_path):
     """`pointillist verify` on a folder: one line a check, a summary line, exit 1 when one failed;
     a scene whose process dies is reported and the others still run."""

@@ -524,11 +524,13 @@ def test_exr_data_window_is_placed_in_the_display_window(tmp_path, rng):
     assert over.shape == (3, 4, 3)
     np.testing.assert_array_equal(over[:2, :2, 0], r[2:, 3:])
     assert (over[2:] == 0).all() and (over[:, 2:] == 0).all()
-    # both windows offset alike: the data as it is; disjoint: all zero
+    # both windows offset alike: the data as it is; disjoint: refused (it was an all-black image without a word)
     _exr(tmp_path / "moved.exr", channels, dataWindow=_box(10, 20, 14, 23), displayWindow=_box(10, 20, 14, 23))
     np.testing.assert_array_equal(read_exr(tmp_path / "moved.exr").image[..., 0], r)
     _exr(tmp_path / "apart.exr", channels, dataWindow=_box(100, 100, 104, 103), displayWindow=_box(0, 0, 4, 3))
-    assert not read_exr(tmp_path / "apart.exr").image.any()
+    with pytest.raises(ValueError, match=r"its data window \(100, 100, 104, 103\) lies wholly outside its display "
+                                         r"window \(0, 0, 4, 3\)"):
+        read_exr(tmp_path / "apart.exr")
 
 
 def test_damaged_exr_pixels_say_so(tmp_path, rng):
