@@ -469,10 +469,10 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     world, local, volumes = _walk(nodes)
     positions = _sensor_positions(nodes)
     where = positions[sensor] if sensor < len(positions) else None
-    stated_positions_ = _stated_positions(nodes, world, volumes)
-    if len(stated_positions_) == 0 and where is not None and recentre_rule(where, stated_positions_)[0]:
-        stated_positions_ = _built_positions(parsed)   # only mesh files: measure where they are
-    moves, reason = recentre_rule(where, stated_positions_)
+    content = _stated_positions(nodes, world, volumes)
+    if len(content) == 0 and where is not None and recentre_rule(where, content)[0]:
+        content = _built_positions(parsed)   # only mesh files: measure where they are
+    moves, reason = recentre_rule(where, content)
     if sensor >= len(positions):
         reason = f"the scene has no sensor {sensor} ({len(positions)} sensor(s))"
     blocked = _blocked(nodes, world, local) if moves else ""

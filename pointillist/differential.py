@@ -32,13 +32,13 @@ LLVM) is a finding, not the end of the run. ``pointillist verify`` is its comman
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
 from collections.abc import Callable, Iterable, Sequence
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -131,16 +131,6 @@ def _difference(name: str, ours: np.ndarray | None, theirs: np.ndarray | None) -
     return f"{name}: {int(pixels.sum())} of {pixels.size} pixels differ (largest difference {worst:.3g})"
 
 
-@contextmanager
-def _working_folder(folder: Path):
-    before = os.getcwd()
-    os.chdir(folder)
-    try:
-        yield
-    finally:
-        os.chdir(before)
-
-
 def _check_mitsuba(path: Path, *, spp: int, seed: int, params: dict[str, str], work: Path) -> Check:
     from pointillist.imaging.io import read_exr
     from pointillist.render import render_file
@@ -158,7 +148,7 @@ def _check_mitsuba(path: Path, *, spp: int, seed: int, params: dict[str, str], w
     def ours_render():
         out = work / f"ours{len(renders)}.exr"  # a new name each time: a file read is never written over
         renders.append(out)
-        with _working_folder(work):  # from another working folder than the scene's or the caller's
+        with contextlib.chdir(work):  # from another working folder than the scene's or the caller's
             render_file(path, out, spp=spp, seed=seed, params=params, threads=1)
         return read_exr(out)
 

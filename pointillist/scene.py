@@ -16,8 +16,8 @@ from pointillist.camera_relative import make_camera_relative
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
-           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "thread_count",
-           "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS",
+           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "add_node",
+           "thread_count", "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS",
            "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter",
            "filter_note", "check_sample_count"]
 
@@ -100,8 +100,8 @@ class ParsedScene:
     ``recentring`` is what :func:`pointillist.camera_relative.make_camera_relative` did to
     ``state`` (``None`` before it ran). ``resolver`` is Mitsuba's file resolver as the parser left
     it: the scene's folder first, after the folders its ``<path>`` elements name; files resolve
-    through it when the scene is built, as in ``mi.load_file``. ``default_integrator`` is true when
-    the scene states no ``<integrator>`` and Mitsuba's ``path`` was added (:data:`DEFAULT_INTEGRATOR`).
+    through it when the scene is built, as in ``mi.load_file``. A scene that states no
+    ``<integrator>`` gets Mitsuba's ``path`` (:data:`DEFAULT_INTEGRATOR`).
     """
 
     path: Path
@@ -110,7 +110,6 @@ class ParsedScene:
     config: Any
     recentring: Any = None
     resolver: Any = None
-    default_integrator: bool = False
 
 
 #: The integrator of a scene that states none: Mitsuba's path tracer with its defaults, the
@@ -171,12 +170,10 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
     except RuntimeError as error:
         raise UsageError(f"scene {path}{what}: {mitsuba_message(error)}") from None
     signals.check()
-    parsed = ParsedScene(path=path, params=params, state=state, config=config, resolver=resolver)
-    parsed.default_integrator = _add_default_integrator(state)
-    if parsed.default_integrator:
+    if _add_default_integrator(state):
         warnings.warn(f"scene {path}: no <integrator>; rendering with Mitsuba's default, "
                       f"<integrator type=\"{DEFAULT_INTEGRATOR}\"/>", stacklevel=2)
-    return parsed
+    return ParsedScene(path=path, params=params, state=state, config=config, resolver=resolver)
 
 
 def references(props) -> list[int]:
@@ -218,19 +215,28 @@ def _add_default_integrator(state) -> bool:
     """
     import mitsuba as mi
 
-    root = state.nodes[0]
-    if root.type != mi.ObjectType.Scene:
+    if state.nodes[0].type != mi.ObjectType.Scene:
         return False
     if any(state.nodes[index].type == mi.ObjectType.Integrator for index in top_level_objects(state)):
         return False
-    node = mi.parser.SceneNode()
-    node.type = mi.ObjectType.Integrator
-    node.props = mi.Properties(DEFAULT_INTEGRATOR)
-    node.file_index = root.file_index
-    del root  # a view into the node list, which the append may move: read it again after
-    state.nodes.append(node)
-    state.nodes[0].props["_default_integrator"] = mi.Properties.ResolvedReference(len(state.nodes) - 1)
+    add_node(state, 0, mi.ObjectType.Integrator, mi.Properties(DEFAULT_INTEGRATOR), "_default_integrator")
     return True
+
+
+def add_node(state, parent: int, kind, props, key: str) -> int:
+    """Append a node of object type ``kind`` holding ``props`` to a parsed scene, referenced by the
+    node ``parent`` under the property ``key``; returns its index. (A node read from
+    ``state.nodes`` is a view into the list, which the append may move: it is read again after.)"""
+    import mitsuba as mi
+
+    node = mi.parser.SceneNode()
+    node.type = kind
+    node.props = props
+    node.file_index = state.nodes[parent].file_index
+    state.nodes.append(node)
+    index = len(state.nodes) - 1
+    state.nodes[parent].props[key] = mi.Properties.ResolvedReference(index)
+    return index
 
 
 def instantiate_scene(parsed: ParsedScene, *, what: str = ""):

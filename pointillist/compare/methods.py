@@ -223,7 +223,7 @@ def swap_samplers(parsed, plugin: str, sample_count: int) -> None:
     """
     import mitsuba as mi
 
-    from pointillist.scene import references, top_level_objects
+    from pointillist.scene import add_node, references, top_level_objects
 
     state = parsed.state
     sensors = [i for i in top_level_objects(state) if state.nodes[i].type == mi.ObjectType.Sensor]
@@ -240,12 +240,7 @@ def swap_samplers(parsed, plugin: str, sample_count: int) -> None:
         for child in own:
             state.nodes[child].props = sampler()
         if not own:
-            node = mi.parser.SceneNode()
-            node.type = mi.ObjectType.Sampler
-            node.props = sampler()
-            node.file_index = state.nodes[index].file_index
-            state.nodes.append(node)  # may move the node list: index it again after
-            state.nodes[index].props["_swapped_sampler"] = mi.Properties.ResolvedReference(len(state.nodes) - 1)
+            add_node(state, index, mi.ObjectType.Sampler, sampler(), "_swapped_sampler")
 
 
 def scene_key(scene_path: str | os.PathLike, params: dict[str, str] | None = None) -> str:

@@ -128,10 +128,9 @@ class Budget:
         if self.target_error is not None and stats.passes >= self.min_passes and stats.trusted \
                 and stats.estimated_relmse <= self.target_error:
             return "error"
-        if self.seconds is not None and (stats.seconds >= self.seconds or self._fitting_spp(stats) + 0.5 < 1
-                                         or (math.isfinite(self._fitting_spp(stats))
-                                             and self._last_fitting_pass(stats) == 0)):
-            return "time"
+        if self.seconds is not None and (stats.seconds >= self.seconds or (
+                math.isfinite(self._fitting_spp(stats)) and self._last_fitting_pass(stats) == 0)):
+            return "time"   # also when less than one spp fits: no pass fits then
         if stats.spp >= checks.UINT32_MAX:
             return "limit"
         return None
@@ -182,9 +181,10 @@ class Budget:
         if math.isfinite(fit) and self.pass_spp is None and stats.passes < self.min_passes:
             # leave room for the passes an estimate needs (the first one, compiling, may take most of it)
             n = min(n, _pow2_floor(max(int(fit / (self.min_passes - stats.passes)), 1)))
-        if math.isfinite(fit) and (int(fit + 0.5) < n or (n not in stats.sizes
-                                                          and self._last_fitting_pass(stats, n) < n)):
-            # a size whose kernel is compiled, or one worth compiling; a compiled one larger than
-            # asked rather than none (0 is for stop_reason alone to say)
-            n = self._last_fitting_pass(stats, n) or self._last_fitting_pass(stats)
+        if math.isfinite(fit):
+            fitting = self._last_fitting_pass(stats, n)
+            if int(fit + 0.5) < n or (n not in stats.sizes and fitting < n):
+                # a size whose kernel is compiled, or one worth compiling; a compiled one larger than
+                # asked rather than none (0 is for stop_reason alone to say)
+                n = fitting or self._last_fitting_pass(stats)
         return int(n)
