@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         status = _run(args, name)
         signum = signals.received()
         if signum is not None and status == 0:
-            print(f"{name}: {signals.message(signum)}", file=sys.stderr)
+            signals.report(signum)
             status = signals.status(signum)
         return status
 
@@ -101,7 +101,7 @@ def _run(args: argparse.Namespace, name: str) -> int:
         signum = signals.received()
         if signum is None:
             signum = signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT
-        print(f"{name}: {signals.message(signum)}", file=sys.stderr)
+        signals.report(signum, name)
         return signals.status(signum)
     except BrokenPipeError as error:
         if _stdout_closed():  # `pointillist post --list-steps | head`: the reader has all it wanted

@@ -366,9 +366,9 @@ def verify_scenes(paths: Iterable[str | os.PathLike], *, spp: int = 2, seed: int
     files = scene_files(paths)
     params = dict(params or {})
     reports = []
-    from tqdm import tqdm
+    from pointillist.terminal import progress_bar
 
-    for path in tqdm(files, desc="scenes", unit="scene", disable=not progress, file=sys.stderr):
+    for path in progress_bar(files, progress=progress, desc="scenes", unit="scene"):
         if isolate:
             reports.append(_child(path, spp=spp, seed=seed, params=params, steps=steps, timeout=timeout))
         else:

@@ -153,12 +153,29 @@ def start_cluster(n_workers: int, *, drjit_threads: int | None = None, quiet: bo
 
     if drjit_threads is None:
         drjit_threads = max(1, (os.cpu_count() or 1) // int(n_workers))
+    _start_resource_tracker()
     cluster = LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                            host="127.0.0.1", dashboard_address=None,
                            silence_logs=logging.ERROR if quiet else logging.WARNING)
     client = Client(cluster)
     client.register_plugin(_worker_plugin_class()(drjit_threads))
     return client
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (the process that removes the semaphores of the
+    workers' queues when this process ends) without its "leaked semaphore" warning: a command
+    stopped at once (:mod:`pointillist.signals`) ends before its cluster is closed, and the
+    tracker's cleaning up after it is not news (the one line about the signal stays the only one)."""
+    import sys
+    from multiprocessing import resource_tracker
+
+    option = "ignore::UserWarning:multiprocessing.resource_tracker"
+    sys.warnoptions.append(option)  # the tracker starts with this process's -W options
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        sys.warnoptions.remove(option)
+
 
 def connect(address: str, *, timeout: float = 10.0, drjit_threads: int | None = None):
     """Connect to a running Dask scheduler at ``address``; return the Client.

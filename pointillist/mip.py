@@ -42,7 +42,11 @@ from pointillist.errors import UsageError
 
 __all__ = ["NAMED_VIEWS", "PERSPECTIVE_MIN_FOV", "check_perspective", "view_axes", "view_frame", "patient_view",
            "normalised_volume", "project_volume", "mip_frame_task", "project_frames", "MipResult", "render_mip",
-           "PLAIN_EXTENT", "NORMAL_EXTENT"]
+           "PLAIN_EXTENT", "NORMAL_EXTENT", "MAX_TURNTABLE_FRAMES"]
+
+#: The most frames of a turntable: one every tenth of a degree (a 2.4-minute GIF at 25 frames a
+#: second). The GIF's frames are held in memory until it is written; 100000 frames asked for hours.
+MAX_TURNTABLE_FRAMES = 3600
 
 
 #: Named views: (right, up, forward) unit vectors in patient LPS (x = left, y = posterior,
@@ -446,6 +450,9 @@ def _check_options(*, native: bool, perspective: float | None, turntable: int | 
         check_perspective(perspective)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    if turntable and turntable > MAX_TURNTABLE_FRAMES:
+        raise UsageError(f"--turntable: expected at most {MAX_TURNTABLE_FRAMES} frames (one every 0.1 degree), "
+                         f"got {turntable}")
     if turntable and native:
         raise UsageError("--turntable needs --size (oblique frames have no native size)")
     if turntable and neurological:
@@ -462,7 +469,8 @@ def _plan_outputs(volume_path, out: Path, turntable: int | None) -> tuple[list[P
     from pointillist.plan import Output, Plan
 
     suffixes = (".png", ".exr")
-    names = ([out.with_name(f"{out.stem}_{k:03d}{out.suffix}") for k in range(turntable)] if turntable
+    digits = max(3, len(str(turntable - 1))) if turntable else 0  # names that sort in frame order
+    names = ([out.with_name(f"{out.stem}_{k:0{digits}d}{out.suffix}") for k in range(turntable)] if turntable
              else [out])
     gif = out.with_suffix(".gif") if turntable and out.suffix.lower() == ".png" else None
     notes = []

@@ -11,11 +11,15 @@ console script does) the handlers only record the signal:
   :class:`~pointillist.errors.Terminated` (SIGTERM) there, and the command line turns it into
   exit status 130 / 143 and one line on stderr. Loops that can keep their work (the passes of a
   progressive render) ask :func:`received` instead and stop after the step in flight.
-* **second signal**: stop now, even inside a long native call (a render kernel). A watcher thread,
-  woken through :func:`signal.set_wakeup_fd` (so it runs while the main thread is in native
-  code), runs the hooks registered with :func:`on_abandon` (a progressive render writes the passes
-  done), removes the temporary files of writes in flight (:func:`temporary_file`), prints one line and
-  ends the process with 130 / 143.
+* **stop now**: a second signal, or :data:`GRACE_SECONDS` after the first when the command has not
+  ended by itself (a render kernel, a filter, a cluster that takes minutes does not return to
+  Python): a watcher thread, woken through :func:`signal.set_wakeup_fd` (so it runs while the main
+  thread is in native code), runs the hooks registered with :func:`on_abandon` (a progressive render
+  writes the passes done) for what is left of :data:`STOP_SECONDS`, removes the temporary files of
+  writes in flight (:func:`temporary_file`), prints one line and ends the process with 130 / 143.
+  Whatever the process is doing, a signal ends it within :data:`STOP_SECONDS` (the one exception:
+  a native call that holds the interpreter's lock all along; Dr.Jit's kernels and Mitsuba's
+  renders release it).
 
 Outside the boundary (library use, a notebook) nothing changes: :func:`check` does nothing, and
 Python's own handlers stay.
@@ -34,13 +38,15 @@ import select
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 from pointillist.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
-           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "ABANDON_SECONDS",
-           "held", "finish"]
+           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "GRACE_SECONDS",
+           "STOP_SECONDS", "held", "report", "finish"]
 
 #: The signals the boundary handles.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -48,8 +54,13 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 #: Exit status after each signal: 128 + the signal number, as a shell reports it.
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
-#: How long the hooks of a second signal may run before the process ends anyway (seconds).
-ABANDON_SECONDS = 30.0
+#: After the first signal, how long a command has to end by itself (reach a safe point, finish the
+#: step in flight) before it is stopped as after a second signal (seconds).
+GRACE_SECONDS = 1.0
+
+#: A signal ends the process at most this long after it arrived (seconds): the hooks of a command
+#: stopped at once get what is left of it (the line and the exit take a few milliseconds more).
+STOP_SECONDS = 1.8
 
 
 class _Boundary:
@@ -67,6 +78,8 @@ class _Boundary:
         self.previous_wakeup = signal.set_wakeup_fd(self.write_fd, warn_on_full_buffer=False)
         self.previous = {signum: signal.signal(signum, _record) for signum in SIGNALS}
         self.stopping = False
+        self.ending = False    # the watcher is stopping the process (abandon)
+        self.reported = False  # the line about the signal was printed (report)
         self.watcher = threading.Thread(target=self._watch, name="pointillist-signals", daemon=True)
         self.watcher.start()
         # unblock the two (an inherited blocked mask would hold them for ever); the watcher keeps
@@ -87,9 +100,11 @@ class _Boundary:
             self.received.extend(b for b in data if b in STATUS)
 
     def _watch(self) -> None:
+        first_at = None  # when the watcher saw the first signal (monotonic seconds)
         while not self.stopping:
+            timeout = None if first_at is None else max(first_at + GRACE_SECONDS - time.monotonic(), 0.0)
             try:
-                select.select([self.read_fd], [], [])
+                select.select([self.read_fd], [], [], timeout)
             except (OSError, ValueError):  # the pipe was closed by uninstall()
                 return
             with self.lock:
@@ -97,21 +112,39 @@ class _Boundary:
                     return
                 self.drain()
                 count = len(self.received)
-            if count >= 2:
-                self.abandon()
+            if count and first_at is None:
+                first_at = time.monotonic()
+            if count >= 2 or (first_at is not None and time.monotonic() >= first_at + GRACE_SECONDS):
+                self.abandon(count >= 2, first_at + STOP_SECONDS)
 
-    def abandon(self) -> None:
-        """Second signal: run the hooks (bounded in time), remove temporary files, one line, exit."""
+    def abandon(self, second: bool, end: float) -> None:
+        """Stop now: run the hooks until ``end`` (monotonic seconds) at most, remove temporary files, one line, exit.
+
+        From here on the main thread's lines go nowhere (stderr is pointed at ``/dev/null``: an
+        error it meets while being stopped is not news) and it cannot end the process by itself
+        (:func:`finish` waits); temporary files made from now on are made after the removal
+        (:func:`temporary_file` waits for the lock held until the exit).
+        """
         with self.lock:
             hooks, first, command = list(self.hooks), self.received[0], self.command
+            self.ending = True
+        with contextlib.suppress(OSError):
+            sys.stderr.flush()
+        stderr = os.dup(2)
+        with contextlib.suppress(OSError), open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
         runner = threading.Thread(target=_run_hooks, args=(hooks,), daemon=True)
         runner.start()
-        runner.join(ABANDON_SECONDS)
-        with self.lock:
-            for name in list(self.temporary):
-                with contextlib.suppress(OSError):
-                    os.unlink(name)
-        _print_line(f"{command}: {message(first)}; stopped at once (second signal)")
+        runner.join(max(end - time.monotonic(), 0.0))
+        self.lock.acquire()  # never released: the process ends below
+        for name in list(self.temporary):
+            with contextlib.suppress(OSError):
+                os.unlink(name)
+        _end_children()
+        if not self.reported:
+            why = "second signal" if second else f"it did not stop within {GRACE_SECONDS:g} s"
+            with contextlib.suppress(OSError):
+                os.write(stderr, f"{command}: {message(first)}; stopped at once ({why})\n".encode())
         os._exit(STATUS[first])
 
     def close(self) -> None:
@@ -143,6 +176,35 @@ def _run_hooks(hooks) -> None:
             hook()
         except BaseException:  # noqa: BLE001 - the process is ending; a failing hook must not stop that
             pass
+
+
+def _descendants(pid: int) -> list[int]:
+    """The processes below ``pid`` (children first), read from ``/proc`` (empty where there is none)."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            text = stat.read_text()
+            ppid = int(text[text.rindex(")") + 2:].split()[1])  # after the command name: state, ppid
+            parents.setdefault(ppid, []).append(int(stat.parent.name))
+    found, queue = [], [pid]
+    while queue:
+        children = parents.get(queue.pop(0), [])
+        found += children
+        queue += children
+    return found
+
+
+def _end_children() -> None:
+    """Kill the processes this one started (Dask workers, a child render), which the exit would
+    leave running for a while; not multiprocessing's resource tracker, which ends by itself when
+    this process does and then removes the semaphores the workers left."""
+    from multiprocessing import resource_tracker
+
+    tracker = getattr(resource_tracker._resource_tracker, "_pid", None)
+    for pid in _descendants(os.getpid()):
+        if pid != tracker:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def _print_line(text: str) -> None:
@@ -239,7 +301,8 @@ def message(signum: int) -> str:
 def on_abandon(hook: Callable[[], None]) -> Iterator[None]:
     """While the block runs, a second signal runs ``hook`` (in another thread) before the process ends.
 
-    The hook may not touch what the main thread is changing; it gets :data:`ABANDON_SECONDS`.
+    The hook may not touch what the main thread is changing; it runs until :data:`STOP_SECONDS`
+    after the first signal at most (a file it is writing then is removed).
     """
     state = _STATE
     if state is None:
@@ -324,16 +387,39 @@ def held() -> Iterator[None]:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
+def report(signum: int, command: str | None = None) -> None:
+    """Print the one line about ``signum`` (``pointillist render: terminated (SIGTERM)``) on stderr.
+
+    Once per process under the boundary: a second call, or a call while the watcher stops the
+    process (it prints its own line), prints nothing.
+    """
+    state = _STATE
+    if state is None:
+        _print_line(f"{command or 'pointillist'}: {message(signum)}")
+        return
+    with state.lock:
+        if state.reported or state.ending:
+            return
+        state.reported = True
+        _print_line(f"{command or state.command}: {message(signum)}")
+
+
 def finish(exit_status: int) -> int:
     """The final exit status: a signal received before the process ends makes a success 130 / 143.
 
     Called last by the console script, with the signals blocked in the calling thread so that no
     signal lands between this decision and the exit; prints the one line when it changes the
-    status (an error line already printed stays the only one).
+    status (an error line already printed stays the only one). While the watcher stops the
+    process (:data:`GRACE_SECONDS` passed, or a second signal) it waits for that: the watcher
+    ends the process.
     """
     _block()
+    state = _STATE
+    if state is not None and state.ending:
+        while True:
+            time.sleep(1.0)
     signum = received()
     if signum is not None and exit_status == 0:
-        _print_line(f"{_STATE.command if _STATE is not None else 'pointillist'}: {message(signum)}")
+        report(signum)
         return STATUS[signum]
     return exit_status

@@ -578,9 +578,9 @@ _SECOND_SIGNAL = textwrap.dedent("""
 
     real, calls, SIGNAL = progressive.timed_render, [], getattr(signal, sys.argv[1])
 
-    def send():  # from another thread, as a user's terminal would
-        for _ in range(2):
-            time.sleep(0.5)
+    def send():  # from another thread, as a user's terminal would; the second well within the
+        for pause in (0.5, 0.1):  # second the first one leaves the command to stop by itself
+            time.sleep(pause)
             os.kill(os.getpid(), SIGNAL)
 
     def timed_render(*args, **kwargs):

@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import textwrap
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -325,3 +329,166 @@ def test_results_md_shows_a_scene_name_as_text(cli, tmp_path):
     text = (tmp_path / "cmp" / "results.md").read_text()
     assert text.splitlines()[0] == r"# Sampler comparison: &lt;img src=x onerror=alert\(1\)&gt;\`\*\_.xml"
     assert f"Scene `` {tmp_path / name} ``" in text   # a code span: shown as text, whatever it holds
+
+
+# ------------------------------------------------------------------ a signal during a long kernel
+_LONG_KERNEL = textwrap.dedent("""
+    import os, signal, sys, threading, time
+    import drjit as dr
+    from pointillist.console import main
+
+    real = {"eval": dr.eval, "sync_thread": dr.sync_thread}
+    hung = []
+
+    def send():
+        time.sleep(0.3)
+        print("signal sent at", time.monotonic(), flush=True)  # the moment of the signal, on the system-wide clock
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def hang(name):
+        def call(*args, **kwargs):
+            if not hung and threading.current_thread() is threading.main_thread():
+                hung.append(1)  # the first kernel the command waits for runs for ten minutes: a
+                # native call that does not return (the signal lands in another thread)
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+                threading.Thread(target=send, daemon=True).start()
+                time.sleep(600)
+            return real[name](*args, **kwargs)
+        return call
+
+    dr.eval, dr.sync_thread = hang("eval"), hang("sync_thread")
+    sys.argv = ["pointillist"] + sys.argv[1:]
+    main()
+""")
+
+
+def _no_live_process_in_group(pgid: int) -> bool:
+    """Whether the process group ``pgid`` has no process left but zombies (a container's first
+    process may not reap the orphans it inherits)."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            return False
+    return True
+
+
+def _stopped_by_sigterm(argv: list, *, driver: str | None = None, wait: float | None = None) -> tuple:
+    """Run ``pointillist *argv`` in a session of its own and SIGTERM it once (the driver sends it
+    and prints when; else ``wait`` seconds after the start): (seconds to its end, stderr lines)."""
+    command = [sys.executable, "-c", driver] if driver else [sys.executable, "-m", "pointillist"]
+    proc = subprocess.Popen(command + [str(a) for a in argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, start_new_session=True)
+    try:
+        if driver:
+            sent = next(float(line.split()[-1]) for line in proc.stdout if line.startswith("signal sent at"))
+        else:
+            time.sleep(wait)
+            assert proc.poll() is None, proc.communicate()
+            sent = time.monotonic()
+            proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=120)
+        seconds = time.monotonic() - sent
+        stderr = proc.stderr.read()
+    finally:
+        proc.kill()
+        proc.communicate()
+    assert proc.returncode == 143, stderr
+    deadline = time.monotonic() + 5
+    while not _no_live_process_in_group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _no_live_process_in_group(proc.pid)  # no worker, child render or helper left running
+    return seconds, stderr.splitlines()
+
+
+def _long_kernel_commands(folder: Path) -> dict[str, list]:
+    from PIL import Image
+
+    Image.fromarray(np.arange(256, dtype=np.uint8).reshape(16, 16)).save(folder / "img.png")
+    np.save(folder / "vol.npy", np.arange(512, dtype=np.float32).reshape(8, 8, 8))
+    scene = SCENES / "default.xml"
+    return {
+        "render": ["render", scene, "-D", "res=16", "--spp", "4", "-o", folder / "r.exr"],
+        "progressive": ["render", scene, "-D", "res=16", "--spp", "64", "--pass-spp", "4", "--checkpoint", "0.01",
+                        "-o", folder / "p.exr"],
+        "compare": ["compare", scene, "-D", "res=8", "--samplers", "independent", "--spp", "1,4",
+                    "--reference-spp", "16", "--no-progress", "--out", folder / "c"],
+        "post": ["post", folder / "img.png", "-o", folder / "x.png", "--steps", "gamma:2;sobel"],
+        "mip": ["mip", folder / "vol.npy", "-o", folder / "m.png", "--size", "16", "--turntable", "2"],
+    }
+
+
+@pytest.mark.parametrize("command", ["render", "progressive", "compare", "post", "mip"])
+def test_one_sigterm_during_a_long_kernel_ends_every_command_within_two_seconds(tmp_path, command):
+    """Defect 7: one SIGTERM to a command whose kernel runs for minutes was held until the kernel
+    ended. Now, if the command has not stopped by itself a second after the signal, it is stopped
+    at once: exit 143 within 2 s of the signal, one line, no temporary file."""
+    from pointillist.signals import STOP_SECONDS
+
+    argv = _long_kernel_commands(tmp_path)[command]
+    before = set(tmp_path.rglob("*"))
+    seconds, lines = _stopped_by_sigterm(argv, driver=_LONG_KERNEL)
+    assert seconds <= 2.0 and STOP_SECONDS < 2.0, seconds
+    assert lines == ["pointillist %s: terminated (SIGTERM); stopped at once (it did not stop within 1 s)"
+                     % argv[0]], lines
+    assert not [p for p in set(tmp_path.rglob("*")) - before if ".tmp" in p.name or p.suffix in (".exr", ".png")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("options", [["render", "--spp", "262144"],
+                                     ["render", "--spp", "262144", "--tiles", "2x1", "--workers", "2"],
+                                     ["verify", "--spp", "65536"]],
+                         ids=["one-pass", "dask-workers", "verify-child-process"])
+def test_one_sigterm_during_a_real_render_pass_ends_it_within_two_seconds(tmp_path, options):
+    """The same with Dr.Jit's own kernel: a 64x64 pass of 2^18 spp runs for minutes here; SIGTERM
+    once it runs (8 s after the start) ends the command within 2 s, its Dask workers and the
+    process ``verify`` renders in too."""
+    command, *options = options
+    out = ["-o", tmp_path / "long.exr"] if command == "render" else []
+    seconds, lines = _stopped_by_sigterm([command, SCENES / "default.xml", "-D", "res=64", *options, *out], wait=8.0)
+    assert seconds <= 2.0, seconds
+    assert len(lines) == 1 and lines[0].startswith(f"pointillist {command}: terminated (SIGTERM)"), lines
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_pass_spp_under_a_time_budget_never_outlasts_it(cli, tmp_path):
+    """Defect 7: ``--pass-spp 100000000 --time 1`` ran one pass of 323 s. Under ``--time`` the
+    first pass (its cost unknown) takes no more than an auto first pass, the others what fits."""
+    import math
+
+    from pointillist.progressive import FIRST_PASS_SAMPLES, Budget, PassStats
+    from pointillist.progressive.budget import _pow2_floor
+
+    start = PassStats(0, 0, 0, 0.0, 0.0, 0.0, 0.0, math.nan, 64, 64)
+    assert Budget(seconds=1, pass_spp=10**8)(start) == _pow2_floor(FIRST_PASS_SAMPLES // 64**2) == 64
+    assert Budget(seconds=1, pass_spp=4)(start) == 4                   # a smaller pass is kept
+    assert Budget(spp=10**9, pass_spp=10**8)(start) == 2**32 // 64**2 // 2  # no time budget: the largest pass
+    out = tmp_path / "t.exr"
+    done = cli("render", SCENES / "default.xml", "-D", "res=64", "--pass-spp", "100000000", "--time", "1", "-o", out)
+    assert done.returncode == 0, done.stderr
+    from pointillist.imaging.io import read_exr
+
+    _, meta, _ = read_exr(out)
+    assert meta["stopped_by"] == "time" and meta["passes"] >= 2
+
+
+def test_turntable_and_seeds_are_bounded(cli, tmp_path):
+    """Smaller ones: ``--turntable 100000`` wrote 4,237 frames in 150 s before it was stopped (and
+    holds every frame for the GIF); ``--seeds 100000`` was accepted without a word."""
+    from pointillist.mip import MAX_TURNTABLE_FRAMES, _plan_outputs
+
+    done = cli("mip", SCENES / "phantom64.vol", "-o", tmp_path / "t.png", "--size", "16", "--turntable", "100000")
+    assert done.returncode == 2 and done.stderr.splitlines() == [
+        "pointillist mip: error: --turntable: expected at most 3600 frames (one every 0.1 degree), got 100000"]
+    done = cli("compare", SCENES / "default.xml", "--seeds", "1001", "--out", tmp_path / "c")
+    assert done.returncode == 2 and done.stderr.splitlines() == [
+        "pointillist compare: error: --seeds: expected an integer in 1..1000, got 1001"]
+    assert list(tmp_path.iterdir()) == []
+    # frame names sort in frame order however many frames there are
+    names, _, _ = _plan_outputs(SCENES / "phantom64.vol", tmp_path / "t.png", MAX_TURNTABLE_FRAMES)
+    assert [n.name for n in (names[0], names[999], names[-1])] == ["t_0000.png", "t_0999.png", "t_3599.png"]
+    assert sorted(names) == names
+    names, _, _ = _plan_outputs(SCENES / "phantom64.vol", tmp_path / "t.png", 12)
+    assert [n.name for n in (names[0], names[-1])] == ["t_000.png", "t_011.png"]

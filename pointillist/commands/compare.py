@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=spp_list, default=list(DEFAULT_SPP),
                         help=f"samples per pixel to sweep (default {','.join(map(str, DEFAULT_SPP))})")
     parser.add_argument("--seeds", type=positive_int, default=1,
-                        help="renders per point with seeds 0..K-1; mean and spread reported (default 1)")
+                        help="renders per point with seeds 0..K-1, K <= 1000; mean and spread reported (default 1)")
     reference = parser.add_mutually_exclusive_group()
     reference.add_argument("--reference-spp", type=positive_int, default=4096,
                            help="samples per pixel of the reference render, Mitsuba's stratified "

@@ -30,8 +30,8 @@ oblique acquisition (voxel axes not along the patient's), the in-plane voxel spa
 along the image's right and up (the two voxel axes other than the one closest to the
 viewing direction) gives the pixel size and the image covers the whole volume.
 4-D inputs (4-D NIfTI, DICOM series with several images per slice position) need
---frame N. --turntable N writes N frames around the patient's superior axis (and an
-animated GIF beside them when imageio is installed).
+--frame N. --turntable N writes N frames around the patient's superior axis (at most
+3600, one every 0.1 degree; and an animated GIF beside them when imageio is installed).
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--series", metavar="UID|INDEX",
                         help="the DICOM series to read from a folder holding several (UID or index in the listing)")
     parser.add_argument("--turntable", type=positive_int, metavar="N",
-                        help="write N frames turning about z (OUT_000.png ...) and OUT.gif")
+                        help="write N frames turning about z (OUT_000.png ...; N <= 3600) and OUT.gif")
     cluster = parser.add_mutually_exclusive_group()
     cluster.add_argument("--workers", type=positive_int, metavar="N",
                          help="project the frames as tasks on a local Dask cluster of N worker processes")

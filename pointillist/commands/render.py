@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="render passes until the estimated relMSE (epsilon 0.01, as in compare) is at most E "
                            "and trusted (its two halves of passes agree)")
     prog.add_argument("--pass-spp", type=positive_int, metavar="N",
-                      help="samples per pixel of each pass (default: powers of two, passes of about 2 s)")
+                      help="samples per pixel of each pass (default: powers of two, passes of about 2 s); with --time, "
+                           "the most a pass takes (no pass outlasts the budget)")
     prog.add_argument("--variance-layer", action="store_true",
                       help="add an EXR layer 'variance': per-pixel variance of the mean (colour channels averaged)")
     prog.add_argument("--checkpoint", type=positive_float, metavar="SECONDS",

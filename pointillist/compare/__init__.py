@@ -39,12 +39,16 @@ from pointillist.compare.sweep import (REFERENCE_SAMPLER, REFERENCE_SEED, preren
 from pointillist.errors import UsageError
 
 __all__ = ["compare_scene", "CompareResult", "sweep_tasks", "DEFAULT_SPP", "DEFAULT_METHODS", "Task", "RenderRecord",
-           "render_one", "run_sweep", "prerender_sweep", "REFERENCE_SAMPLER", "REFERENCE_SEED"]
+           "render_one", "run_sweep", "prerender_sweep", "REFERENCE_SAMPLER", "REFERENCE_SEED", "MAX_SEEDS"]
 
 #: Default sweep of ``pointillist compare``.
 DEFAULT_SPP = (1, 4, 16, 64, 256)
 
 DEFAULT_METHODS = ("grid", "jitter", "random", "poisson")
+
+#: The most seeds (renders of each point of the sweep) a compare takes: the mean and spread over
+#: seeds settle within tens; 100000 asked a sweep of days without a word.
+MAX_SEEDS = 1000
 
 
 @dataclass
@@ -70,13 +74,16 @@ class CompareResult:
 
 def sweep_tasks(methods: Sequence[str] | str, spp: Sequence[int], seeds: int) -> list[Task]:
     """The tasks of a sweep: every method at every sweep value (``spp`` for samplers, the
-    method's own values otherwise) and seed ``0..seeds-1``."""
+    method's own values otherwise) and seed ``0..seeds-1`` (at most :data:`MAX_SEEDS`)."""
+    from pointillist import checks
+
+    seeds = checks.integer(seeds, "--seeds", low=1, high=MAX_SEEDS)
     tasks = []
     for method in resolve_methods(methods):
         values = list(spp) if method.parameter == "spp" else list(method.values)
         if not values:
             raise UsageError(f"--samplers: {method.name} sweeps {method.parameter}, which has no values")
-        tasks += [Task(method.name, v, seed) for v in values for seed in range(int(seeds))]
+        tasks += [Task(method.name, v, seed) for v in values for seed in range(seeds)]
     return tasks
 
 

@@ -60,7 +60,10 @@ class Budget:
     pass_spp : int, optional
         Samples per pass; default (None): the first pass takes about
         :data:`FIRST_PASS_SAMPLES` samples (it compiles the kernels), the others the power of
-        two nearest to :data:`TARGET_PASS_SECONDS` (at most an eighth of ``seconds``).
+        two nearest to :data:`TARGET_PASS_SECONDS` (at most an eighth of ``seconds``). With
+        ``seconds`` it is the most a pass takes: no pass may outlast the budget, so the first
+        one (its cost unknown) takes no more than an auto first pass, and the others no more
+        than fits in the time left.
     min_passes : int
         Passes before ``target_error`` is checked (at least
         :data:`~pointillist.progressive.estimate.MIN_PASSES`).
@@ -157,12 +160,15 @@ class Budget:
         pixels = max(stats.width * stats.height, 1)
         largest = _pow2_floor(max(checks.UINT32_MAX // pixels, 1))
         rate = stats.seconds_per_spp()
+        first = _pow2_floor(max(FIRST_PASS_SAMPLES // pixels, 1))
         if self.pass_spp is not None:
-            n = self.pass_spp
+            # under a time budget, a pass of unknown cost may not outlast it: the first pass (no
+            # rate yet) takes no more than an auto first pass, the others what fits (below)
+            n = self.pass_spp if self.seconds is None or math.isfinite(rate) else min(self.pass_spp, first)
         elif self.target_error is not None and stats.passes < self.min_passes:
             n = 1  # until the first estimate, as few samples as possible: the target may need only a few
         elif stats.passes == 0 or not math.isfinite(rate):
-            n = _pow2_floor(max(FIRST_PASS_SAMPLES // pixels, 1))
+            n = first
         else:
             target = TARGET_PASS_SECONDS if self.seconds is None else min(TARGET_PASS_SECONDS, self.seconds / 8)
             n = 1 << max(round(math.log2(max(target / rate, 1.0))), 0)  # nearest power of two
