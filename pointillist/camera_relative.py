@@ -60,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from pointillist import checks
+from pointillist.parsed_state import read_properties, resolving_from
 
 __all__ = ["PRECISION", "FAR", "Recentring", "recentre_rule", "float32_spacing", "sensor_positions", "stated_positions",
            "make_camera_relative", "offset_text"]
@@ -161,9 +162,7 @@ def _graph(state) -> list[_Node]:
             nodes.append(_Node(index, kind, "", None, {}, {}, []))
             continue
         props = node.props
-        # read a copy: reading marks a property as used, and Mitsuba refuses a scene with a property
-        # no plugin used (a misspelt name) only while the marks are its plugins' own
-        values = dict(mi.Properties(props).items())
+        values = read_properties(props)
         types = {key: kinds.get(type(value), "") for key, value in values.items()}
         children = [values[key].index() for key, kind in types.items() if kind == "ResolvedReference"]
         nodes.append(_Node(index, kind, props.plugin_name(), props, values, types, children))
@@ -305,16 +304,12 @@ def _built_positions(parsed) -> np.ndarray:
     reported when it is built for good)."""
     import mitsuba as mi
 
-    saved = mi.file_resolver()
-    if getattr(parsed, "resolver", None) is not None:
-        mi.set_file_resolver(mi.FileResolver(parsed.resolver))
     try:
-        scene = mi.parser.instantiate(parsed.config, parsed.state)
+        with resolving_from(parsed.path.resolve().parent, parsed.resolver):
+            scene = mi.parser.instantiate(parsed.config, parsed.state)
         boxes = [shape.bbox() for shape in scene.shapes()] if isinstance(scene, mi.Scene) else []
     except RuntimeError:
         boxes = []
-    finally:
-        mi.set_file_resolver(saved)
     centres = [[0.5 * (float(box.min[i]) + float(box.max[i])) for i in range(3)] for box in boxes if box.valid()]
     return np.array(centres, dtype=np.float64).reshape(-1, 3)
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from pointillist.distributed import file_digest
 from pointillist.errors import UsageError
 from pointillist.files import check_output_path, existing_ancestor, unwritable
+from pointillist.parsed_state import read_properties, resolving_from
 
 __all__ = ["Output", "Plan", "scene_inputs", "inputs_digest", "scene_digest"]
 
@@ -171,21 +172,12 @@ def scene_inputs(parsed) -> list[Path]:
     out (Mitsuba reports it when the scene is built); one that names a device, a pipe or a socket
     is a UsageError (reading ``/dev/zero`` as a PLY never ends). Each file once.
     """
-    import mitsuba as mi
-
-    from pointillist.scene import resolving_from
-
     found: list[Path] = [Path(str(name)) for name in parsed.state.files]
-    string = mi.Properties.Type.String
     with resolving_from(parsed.path.resolve().parent, getattr(parsed, "resolver", None)) as resolver:
         for node in parsed.state.nodes:
-            props = node.props
-            for key in props.keys():
-                if props.type(key) != string:
+            for key, value in read_properties(node.props).items():
+                if not isinstance(value, str):
                     continue
-                queried = props.was_queried(key)
-                value = props[key]
-                props.mark_queried(key, queried)  # reading it must not hide an unused property
                 if not value or len(value) > _MAX_NAME or "\0" in value:
                     continue
                 try:

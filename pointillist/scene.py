@@ -13,10 +13,11 @@ from typing import Any
 from pointillist import signals
 from pointillist.checks import UINT32_MAX, memory
 from pointillist.camera_relative import make_camera_relative
+from pointillist.parsed_state import references, resolving_from
 from pointillist.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
-           "check_scene_file", "resolving_from", "root_cause", "references", "top_level_objects", "add_node",
+           "check_scene_file", "root_cause", "top_level_objects", "add_node",
            "thread_count", "render_error", "DEFAULT_INTEGRATOR", "check_sensor", "MAX_FILTER_RADIUS",
            "mitsuba_message", "MAX_MESSAGE", "RenderTiming", "timed_render", "scene_info", "film_filter",
            "filter_note", "check_sample_count"]
@@ -117,29 +118,6 @@ class ParsedScene:
 DEFAULT_INTEGRATOR = "path"
 
 
-@contextmanager
-def resolving_from(folder: Path, resolver=None):
-    """Mitsuba's file resolver for loading a scene; the one before is restored after.
-
-    Without ``resolver``: the current one with ``folder`` first, as ``mi.load_file`` sets it up
-    before parsing. With one (a :class:`ParsedScene`'s ``resolver``): a copy of it, which holds the
-    folders the scene's ``<path>`` elements added. Yields the resolver in use.
-    """
-    import mitsuba as mi
-
-    saved = mi.file_resolver()
-    if resolver is None:
-        resolver = mi.FileResolver(saved)
-        resolver.prepend(str(folder))
-    else:
-        resolver = mi.FileResolver(resolver)
-    mi.set_file_resolver(resolver)
-    try:
-        yield resolver
-    finally:
-        mi.set_file_resolver(saved)
-
-
 def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text: str | None = None,
                 what: str = "") -> ParsedScene:
     """Parse a Mitsuba scene file with ``$param`` overrides, without building it.
@@ -174,16 +152,6 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
         warnings.warn(f"scene {path}: no <integrator>; rendering with Mitsuba's default, "
                       f"<integrator type=\"{DEFAULT_INTEGRATOR}\"/>", stacklevel=2)
     return ParsedScene(path=path, params=params, state=state, config=config, resolver=resolver)
-
-
-def references(props) -> list[int]:
-    """The node indices a parsed node's properties refer to, in order (read from a copy: reading
-    a property marks it used, and Mitsuba refuses a property no plugin used only while the marks
-    are its plugins' own)."""
-    import mitsuba as mi
-
-    return [value.index() for _key, value in mi.Properties(props).items()
-            if isinstance(value, mi.Properties.ResolvedReference)]
 
 
 def top_level_objects(state) -> list[int]:

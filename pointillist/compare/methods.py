@@ -223,7 +223,8 @@ def swap_samplers(parsed, plugin: str, sample_count: int) -> None:
     """
     import mitsuba as mi
 
-    from pointillist.scene import add_node, references, top_level_objects
+    from pointillist.parsed_state import references
+    from pointillist.scene import add_node, top_level_objects
 
     state = parsed.state
     sensors = [i for i in top_level_objects(state) if state.nodes[i].type == mi.ObjectType.Sensor]
