@@ -17,11 +17,12 @@ gives each class its name as the attribute ``PLUGIN_NAME``, and ``pointillist co
 sweeps every sampler found.
 
 Because Mitsuba's Python base classes (``mi.SamplingIntegrator``, ``mi.BSDF``,
-``mi.Sampler``) only exist once a variant is set (mitsuba3 #1611), plugin
-modules are imported by :func:`register`, after ``mi.set_variant``; they are
-re-imported when the variant changes. This package itself imports neither Mitsuba
-nor Dr.Jit (``pointillist -h`` lists the samplers without a libLLVM); its sub-packages,
-which hold the plugins, point Dr.Jit at a usable libLLVM first
+``mi.Sampler``) only exist once a variant is set, plugin modules are imported
+after ``mi.set_variant``: when Mitsuba first builds the plugin (:func:`plugin_class`;
+:func:`register` registers the names); they are re-imported when the variant changes.
+This package itself imports neither Mitsuba nor Dr.Jit (``pointillist -h`` lists the
+samplers without a libLLVM); its sub-packages, which hold the plugins, point Dr.Jit at a
+usable libLLVM first
 (:func:`pointillist.llvm.ensure_llvm`).
 
 Usage::
@@ -39,9 +40,10 @@ import ast
 import importlib
 import pkgutil
 import sys
+import threading
 from pathlib import Path
 
-__all__ = ["register", "registered", "available", "summary", "KINDS", "DEFAULT_VARIANT"]
+__all__ = ["register", "registered", "plugin_class", "available", "summary", "KINDS", "DEFAULT_VARIANT"]
 
 #: Folder -> Mitsuba registration function name.
 KINDS = {
@@ -108,8 +110,10 @@ def summary(name: str) -> str:
 def register() -> dict[str, str]:
     """Register every plugin of the project with Mitsuba for the current variant.
 
-    Idempotent: a second call for the same variant does nothing. Returns a
-    mapping ``plugin name -> kind`` of what is registered (:func:`available`).
+    Registers the names only: a plugin's module is imported when Mitsuba first builds one
+    (:func:`plugin_class`), so that a command pays for the plugins its scene uses (importing them
+    all took a quarter of a second). Idempotent: a second call for the same variant does nothing.
+    Returns a mapping ``plugin name -> kind`` of what is registered (:func:`available`).
 
     Raises
     ------
@@ -132,19 +136,53 @@ def register() -> dict[str, str]:
     names: dict[str, str] = {}
     for folder, function in KINDS.items():
         for name in _module_names(folder):
-            module_name = f"{__name__}.{folder}.{name}"
-            module = sys.modules.get(module_name)
-            if module is not None and getattr(module, "_VARIANT", None) != variant:
-                module = importlib.reload(module)
-            elif module is None:
-                module = importlib.import_module(module_name)
-            module._VARIANT = variant
-            cls = module.PLUGIN_CLASS
-            cls.PLUGIN_NAME = name  # the file's name: written nowhere else
-            getattr(mi, function)(name, lambda props, cls=cls: cls(props))
+            getattr(mi, function)(name, lambda props, name=name: plugin_class(name)(props))
             names[name] = folder[:-1]
     _registered[variant] = names
     return dict(names)
+
+
+_IMPORTING = threading.Lock()  # Mitsuba builds a scene's objects in several threads at once
+
+
+def plugin_class(name: str) -> type:
+    """The class of plugin ``name`` for the current Mitsuba variant.
+
+    Imports its module on first use (re-imports it after a variant change: Mitsuba's base classes
+    differ per variant) and gives the class its file's name as ``PLUGIN_NAME``.
+
+    Examples
+    --------
+    >>> import mitsuba as mi
+    >>> _ = mi.set_variant("llvm_ad_rgb")
+    >>> plugin_class("jitter").PLUGIN_NAME
+    'jitter'
+    """
+    import mitsuba as mi
+
+    kind = available().get(name)
+    if kind is None:
+        raise ValueError(f"name: no pointillist plugin named {name!r}; expected one of "
+                         f"{', '.join(sorted(available()))}")
+    variant = mi.variant()
+    if not variant:
+        raise RuntimeError(f"plugin {name}: no Mitsuba variant is set; call mitsuba.set_variant"
+                           f"({DEFAULT_VARIANT!r}) first")
+    module_name = f"{__name__}.{kind}s.{name}"
+    with _IMPORTING:
+        module = sys.modules.get(module_name)
+        if module is None:
+            module = importlib.import_module(module_name)
+        elif not _of_this_variant(module.PLUGIN_CLASS, mi):
+            module = importlib.reload(module)
+        cls = module.PLUGIN_CLASS
+        cls.PLUGIN_NAME = name  # the file's name: written nowhere else
+    return cls
+
+
+def _of_this_variant(cls: type, mi) -> bool:
+    """Whether ``cls`` derives from the current variant's Mitsuba classes (each variant has its own)."""
+    return all(getattr(mi, base.__name__, None) is base for base in cls.__mro__ if base.__module__ == "mitsuba")
 
 
 def registered() -> dict[str, str]:

@@ -35,8 +35,8 @@ def test_available_lists_what_register_registers(mi):
         plugins.available("samplers")
     # each class carries its file's name, which Mitsuba knows it by
     for name, kind in plugins.registered().items():
-        cls = sys.modules[f"pointillist.plugins.{kind}s.{name}"].PLUGIN_CLASS
-        assert cls.PLUGIN_NAME == name
+        cls = plugins.plugin_class(name)
+        assert cls.PLUGIN_NAME == name and cls is sys.modules[f"pointillist.plugins.{kind}s.{name}"].PLUGIN_CLASS
     scene = mi.load_dict({"type": "scene", "sensor": {"type": "perspective", "sampler": {"type": "zsobol"}}})
     assert type(scene.sensors()[0].sampler()).PLUGIN_NAME == "zsobol"
 

@@ -147,8 +147,7 @@ def plugin_classes() -> dict[str, tuple[str, type]]:
     from pointillist import plugins
 
     pointillist.setup()
-    return {name: (kind, getattr(sys.modules.get(f"pointillist.plugins.{kind}s.{name}"), "PLUGIN_CLASS", None))
-            for name, kind in plugins.registered().items()}
+    return {name: (kind, plugins.plugin_class(name)) for name, kind in plugins.registered().items()}
 
 
 def plugin_title(docstring: str) -> tuple[str, list[str], list[str]]:
