@@ -426,8 +426,8 @@ def read_image(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     Non-EXR images come back with empty metadata and no layers, as float32 values:
 
     - 8-bit images (grey, bilevel, palette, colour; CMYK, YCbCr, LAB and HSV converted to RGB by
-      Pillow): 0..255, as (H, W), (H, W, 3), or (H, W, 4) when there is alpha (a palette with
-      transparency included);
+      Pillow): 0..255, as (H, W) or (H, W, 3), and (H, W, 2) or (H, W, 4) when there is alpha (a
+      palette with transparency included), as scikit-image's ``imread`` reads them;
     - 16-bit grey: value / 257, 0..255 with 16 bits of precision;
     - 16-bit colour: 0..255 at 8-bit precision (Pillow keeps the high byte of each value);
     - float, 32-bit integer and signed integer (TIFF) images: their values unchanged, not scaled
@@ -486,5 +486,6 @@ def _pillow_values(img: Any) -> np.ndarray:
     if mode == "L" and signed:  # signed 8-bit TIFF: Pillow takes the bytes as unsigned
         return np.asarray(img).view(np.int8).astype(np.float32)
     alpha = mode in _ALPHA_MODES or (mode == "P" and "transparency" in img.info)
-    target = "RGBA" if alpha else ("L" if mode in ("L", "1") else "RGB")
+    grey = mode in ("L", "1", "LA", "La")
+    target = ("LA" if grey else "RGBA") if alpha else ("L" if grey else "RGB")
     return np.asarray(img.convert(target) if mode != target else img, dtype=np.float32)

@@ -74,7 +74,7 @@ def _run_step(spec, image, kwargs, notes):
             result = spec.function(image, **kwargs)
         except (TypeError, ValueError) as error:
             raise UsageError(f"--steps: {spec.name}: {error}") from None
-    notes.extend(f"post: warning: {warning.message}" for warning in caught)
+    notes.extend(str(warning.message) for warning in caught)
     return result
 
 
@@ -133,7 +133,7 @@ def apply_steps(image, pipeline: str | Sequence, *, linear: bool = False, report
             current = _run_step(known["tonemap"], current, {"operator": "clip"}, notes)
             linear = False
             done.append("tonemap:clip")
-            notes.append("post: input is linear light; applied tonemap:clip first")
+            notes.append("the input is linear light; applied tonemap:clip first")
         elif spec.linear and not linear:
             raise UsageError(f"--steps: {spec.name} expects linear-light (EXR) input, "
                              "but the image is already display-referred")
@@ -193,9 +193,10 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     except ValueError as error:
         raise UsageError(str(error)) from None
     dropped = []
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = image[..., :3]
-        dropped.append("post: warning: the input's alpha channel is dropped (the steps run on RGB)")
+    if image.ndim == 3 and image.shape[2] in (2, 4):  # grey or colour, with alpha
+        kind = "grey" if image.shape[2] == 2 else "RGB"
+        image = image[..., 0] if image.shape[2] == 2 else image[..., :3]
+        dropped.append(f"the input's alpha channel is dropped (the steps run on {kind})")
     before = image
     applied = apply_steps(image, pipeline, linear=source.suffix.lower() == ".exr", report=report)
     current, linear, done, notes, reports = (applied.image, applied.linear, applied.done,

@@ -206,7 +206,7 @@ def test_apply_steps_docstring_and_linear_input():
     assert out.done == ["tonemap:clip", "threshold:level=128"] and not out.linear
     # clip then sRGB-encode: 0 -> 0, 0.5 -> 188, 1 and 4 -> 255; threshold 128
     assert np.asarray(out.image).tolist() == [[0.0, 255.0], [255.0, 255.0]]
-    assert out.notes == ["post: input is linear light; applied tonemap:clip first"]
+    assert out.notes == ["the input is linear light; applied tonemap:clip first"]
 
 
 def test_steps_take_and_pass_uint8_tensors(tmp_path, rng):

@@ -492,3 +492,26 @@ def test_turntable_and_seeds_are_bounded(cli, tmp_path):
     assert sorted(names) == names
     names, _, _ = _plan_outputs(SCENES / "phantom64.vol", tmp_path / "t.png", 12)
     assert [n.name for n in (names[0], names[-1])] == ["t_000.png", "t_011.png"]
+
+
+def test_grey_with_alpha_stays_grey_and_post_warns_as_every_command(cli, tmp_path):
+    """New round: a grey+alpha PNG came out as RGB, and post's warnings read ``post: warning:``
+    where every other command says ``pointillist CMD: warning:``. Grey+alpha reads as (H, W, 2), as
+    scikit-image's ``imread`` reads it; post drops the alpha and keeps the grey."""
+    import skimage.io
+    from PIL import Image
+
+    from pointillist.imaging.io import read_image
+
+    grey = np.arange(64, dtype=np.uint8).reshape(8, 8) * 4
+    Image.fromarray(np.dstack([grey, np.full_like(grey, 200)]), "LA").save(tmp_path / "la.png")
+    image, _, _ = read_image(tmp_path / "la.png")
+    assert image.shape == (8, 8, 2) == skimage.io.imread(tmp_path / "la.png").shape
+    np.testing.assert_array_equal(image[..., 0], grey)
+    done = cli("post", tmp_path / "la.png", "-o", tmp_path / "out.png", "--steps", "gamma:1")
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines() == [
+        "pointillist post: warning: the input's alpha channel is dropped (the steps run on grey)"]
+    with Image.open(tmp_path / "out.png") as out:
+        assert out.mode == "L"
+        np.testing.assert_array_equal(np.asarray(out), grey)

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         for key, value in extra.items():
             print(f"  {key}: {value:.6g}")
     for note in result.notes:
-        print(note, file=sys.stderr)
+        print(f"pointillist post: warning: {note}", file=sys.stderr)
     print(f"wrote {result.output} ({'; '.join(result.done) or 'converted, no step'})")
     if result.plot is not None:
         print(f"wrote {result.plot}")
