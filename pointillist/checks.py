@@ -50,15 +50,16 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported by the checks that use it: a command's -h loads none
+    import numpy as np
 
 __all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
            "choice", "uint32", "seed", "available_memory", "memory"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
-FLOAT32_MAX = float(np.finfo(np.float32).max)
+FLOAT32_MAX = math.ldexp(2.0 - 2.0**-23, 127)
 
 #: The largest value of a 32-bit unsigned counter (sample counts, seeds).
 UINT32_MAX = 2**32 - 1
@@ -72,6 +73,8 @@ def _got(value: Any) -> str:
 
 def _as_float32(value: float) -> float:
     """``value`` rounded to float32 (inf beyond its range), as a Python float."""
+    import numpy as np
+
     with np.errstate(over="ignore"):
         return float(np.float32(value))
 
@@ -117,6 +120,8 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
     ...
     ValueError: level: expected a finite number, got nan
     """
+    import numpy as np
+
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name}: expected a number, got {_got(value)}")
     try:
@@ -159,6 +164,8 @@ def real_array(values: Any, name: str) -> np.ndarray:
     ...
     ValueError: table: expected values float32 can hold (|x| <= 3.40282e+38), got 1e+39 at index 1
     """
+    import numpy as np
+
     try:
         array = np.asarray(values)
     except (TypeError, ValueError) as error:
@@ -212,6 +219,8 @@ def integer(value: Any, name: str, *, low: int | None = None, high: int | None =
     ...
     TypeError: levels: expected an integer, got float 2.0
     """
+    import numpy as np
+
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name}: expected an integer, got {_got(value)}")
     number = int(value)
@@ -236,6 +245,8 @@ def integers(value: Any, name: str, count: int | None = None, *, low: int | None
     ...
     TypeError: size: expected a sequence of integers, got str '64'
     """
+    import numpy as np
+
     if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
         raise TypeError(f"{name}: expected a sequence of integers, got {_got(value)}")
     if count is not None and len(value) != count:
@@ -256,6 +267,8 @@ def boolean(value: Any, name: str) -> bool:
     ...
     TypeError: clamp: expected True or False, got int 1
     """
+    import numpy as np
+
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{name}: expected True or False, got {_got(value)}")
     return bool(value)
@@ -281,6 +294,8 @@ def choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
     expected = ", ".join(map(repr, options))
 
     def kind(x: Any) -> str:
+        import numpy as np
+
         return "bool" if isinstance(x, (bool, np.bool_)) else "str" if isinstance(x, str) else \
             "number" if isinstance(x, numbers.Number) else type(x).__name__
 

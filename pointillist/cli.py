@@ -41,17 +41,24 @@ def _commands():
     return modules
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``pointillist`` argument parser, with one sub-command per module of :mod:`pointillist.commands`."""
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The ``pointillist`` argument parser, with one sub-command per module of :mod:`pointillist.commands`.
+
+    With ``argv`` (the arguments about to be parsed), only the sub-command they name gets its
+    options (the others their one-line help): ``pointillist --help`` and ``pointillist render -h``
+    import no workflow, no numpy and no Mitsuba. Without it, every sub-command is complete.
+    """
     parser = _Parser(prog="pointillist", description=(
         "Render Mitsuba scenes with pointillist's Python plugins, compare sampling patterns, "
         "post-process renders and project volumes."))
     parser.add_argument("--version", action="version", version=f"pointillist {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
+    chosen = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
     for module in _commands():
         command = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
-        module.add_arguments(command)
+        if chosen is None or chosen == module.NAME:
+            module.add_arguments(command)
         command.set_defaults(_run=module.run)
     return parser
 
@@ -76,8 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     makes the status 130 / 143.
     """
     with signals.boundary(), warnings.catch_warnings():
-        parser = build_parser()
-        args = parser.parse_args(argv)
+        arguments = sys.argv[1:] if argv is None else list(argv)
+        args = build_parser(arguments).parse_args(arguments)
         name = f"pointillist {args.command}"
         signals.set_command(name)
         warnings.showwarning = _warning_line(name)

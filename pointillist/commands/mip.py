@@ -40,7 +40,6 @@ import argparse
 import sys
 
 from pointillist.commands._types import finite_float, non_negative_int, positive_float, positive_int
-from pointillist.mip import NAMED_VIEWS
 
 NAME = "mip"
 HELP = "maximum intensity projection of a volume (CT/MRI) to PNG or EXR"
@@ -92,6 +91,8 @@ class _VolumeArgument(argparse.Action):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist mip`` to ``parser``."""
+    from pointillist.mip import NAMED_VIEWS
+
     parser.add_argument("volume", action=_VolumeArgument, help="volume file or folder")
     parser.add_argument("-o", "--output", required=True, help="output .png (windowed) or .exr (raw values)")
     views = parser.add_mutually_exclusive_group()
