@@ -117,7 +117,8 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
         raise ValueError(f"path: no such EXR file: {path}")
     with _OutputCapture() as captured:
         try:
-            with OpenEXR.File(str(path), separate_channels=True) as exr:
+            # through a Python file (OpenEXR takes a path only as UTF-8 text: not every file name is)
+            with open(path, "rb") as stream, OpenEXR.File(stream, separate_channels=True) as exr:
                 parts = [_ExrPart(index, part) for index, part in enumerate(exr.parts)]
         except Exception as error:  # noqa: BLE001 - OpenEXR raises bare RuntimeErrors
             failure = error
@@ -360,9 +361,9 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         header[key] = value
 
     def write(tmp: str) -> None:
-        try:
-            with OpenEXR.File(header, channels) as exr:
-                exr.write(tmp)
+        try:  # through a Python file (OpenEXR takes a path only as UTF-8 text: not every file name is)
+            with OpenEXR.File(header, channels) as exr, open(tmp, "wb") as stream:
+                exr.write(stream)
         except RuntimeError as error:  # OpenEXR's own failures: a full disk, a file size limit
             reason = str(error).rsplit('". ', 1)[-1].strip() or str(error)
             raise OSError(errno.EIO, reason.rstrip(".")) from None

@@ -30,6 +30,17 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):  # noqa: D401 - argparse API
         self.exit(2, f"{self.prog}: error: {message}\n")
 
+    def parse_known_args(self, args=None, namespace=None):
+        """argparse's, and an empty or blank value is a usage error (``-o ''`` would otherwise mean
+        the default folder, a volume ``''`` the current folder)."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            if any(isinstance(v, str) and not v.strip() for v in (value if isinstance(value, list) else [value])):
+                name = "/".join(action.option_strings) or action.dest
+                self.error(f"argument {name}: expected a value, got an empty one")
+        return namespace, extras
+
 
 def _commands():
     import pointillist.commands as package

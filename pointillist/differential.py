@@ -317,7 +317,9 @@ def scene_files(paths: Iterable[str | os.PathLike]) -> list[Path]:
             found.extend(inside)
         else:
             raise UsageError(f"scenes: no such file or folder: {path}")
-    return list(dict.fromkeys(found))
+    from pointillist.scene import check_scene_file
+
+    return [check_scene_file(path) for path in dict.fromkeys(found)]
 
 
 def _is_scene(path: Path) -> bool:

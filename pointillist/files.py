@@ -30,6 +30,7 @@ pointillist.errors.UsageError: --output: refusing to overwrite the input file ..
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -38,8 +39,8 @@ from typing import Any
 from pointillist import signals
 from pointillist.errors import UsageError
 
-__all__ = ["file_id", "mark_input", "unwritable", "existing_ancestor", "check_output_path", "atomic_write",
-           "save_figure"]
+__all__ = ["file_id", "mark_input", "input_file", "unwritable", "existing_ancestor", "check_output_path",
+           "atomic_write", "save_figure"]
 
 #: (st_dev, st_ino) of every file this process read as an input (:func:`mark_input`).
 _READ: set[tuple[int, int]] = set()
@@ -59,6 +60,33 @@ def mark_input(path: str | os.PathLike) -> None:
     ident = file_id(path)
     if ident is not None:
         _READ.add(ident)
+
+
+def input_file(path: str | os.PathLike, name: str = "path") -> Path:
+    """``path`` as a Path, checked to be a file to read: a UsageError naming ``name`` when it is
+    empty, missing, a folder, or not a regular file (a device, a pipe or a socket may never end).
+
+    Examples
+    --------
+    >>> from pointillist.files import input_file
+    >>> input_file("/", "--reference")
+    Traceback (most recent call last):
+    ...
+    pointillist.errors.UsageError: --reference: / is a folder, expected a file
+    """
+    text = os.fspath(path)
+    if not text:
+        raise UsageError(f"{name}: expected a file name, got an empty one")
+    path = Path(text)
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        raise UsageError(f"{name}: no such file: {path}") from None
+    if stat.S_ISDIR(mode):
+        raise UsageError(f"{name}: {path} is a folder, expected a file")
+    if not stat.S_ISREG(mode):
+        raise UsageError(f"{name}: {path} is not a regular file (a device, a pipe or a socket: it may never end)")
+    return path
 
 
 def unwritable(folder: str | os.PathLike) -> str:

@@ -22,6 +22,7 @@ from typing import Any
 
 from pointillist import signals
 from pointillist.errors import UsageError
+from pointillist.files import input_file
 
 __all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot", "POST_COPIES"]
 
@@ -172,9 +173,7 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     text = ";".join([steps, *step] + ([f"dither:{dither.replace(':', ',', 1)}"] if dither else []))
     # no step at all is a conversion (an EXR to an sRGB PNG preview, as `render --png` writes it)
     pipeline = parse_steps(text) if any(chunk.strip() for chunk in text.split(";")) else []
-    source, out = Path(source), Path(output)
-    if not source.is_file():
-        raise UsageError(f"input: no such file: {source}")
+    source, out = input_file(source, "input"), Path(output)
     # The plan, before any work: the input image and any file a step reads (a table), the
     # output and the plot.
     inputs = [source] + [Path(value) for _, kwargs in pipeline for value in kwargs.values()
@@ -204,7 +203,12 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     signals.check()  # a safe point: the steps ran, nothing is written yet
     if out.suffix.lower() == ".exr":
         write_exr(out, current, dict(metadata, post_steps=";".join(done)), inputs=inputs)
-    elif linear:
+    elif linear:  # the sRGB preview of linear values (no step ran, or none left display values)
+        import numpy as np
+
+        bad = int(np.count_nonzero(~np.isfinite(np.asarray(current))))
+        if bad:
+            notes.append(f"the preview replaced {bad} non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)")
         write_png(out, current, inputs=inputs)
     else:
         write_png(out, current, srgb=False, max_value=255.0, inputs=inputs)

@@ -135,6 +135,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         if not tiled:
             image, timing = timed_render(loaded, spp=spp, seed=seed, threads=threads)
             signals.check()  # stopped during the render: nothing is written
+            _warn_nonfinite(image, layout)
             write_render(out, image, loaded, str(scene), dict(info, spp=spp, seed=seed), timing, png=png,
                          layout=layout, inputs=plan.inputs)
             return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
@@ -151,12 +152,30 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
             result = render_tiled(scene, params, tiles=tiles, spp=spp, seed=seed, client=client, cache=cache,
                                   progress=True, inputs_sha256=inputs_digest(plan.inputs, params))
         signals.check()
+        _warn_nonfinite(result.image, layout)
         timing = result.timing()
         meta = dict(info, spp=spp, seed=seed, tile_grid=f"{tiles[0]}x{tiles[1]}",
                     tile_seeds=f"(seed*{len(result.tiles)}+tile) mod 2^32")
         write_render(out, result.image, loaded, str(scene), meta, timing, png=png, layout=layout, inputs=plan.inputs)
         return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
                              tiles=tiles, where=where, cached=result.cached, recentring=parsed.recentring)
+
+
+def _warn_nonfinite(image, layout) -> None:
+    """A warning when the colour of some pixels is NaN or inf (a scene or integrator that gives
+    non-finite values; they are written as they are), as a progressive render warns."""
+    import warnings
+
+    import numpy as np
+
+    colour = layout.split(np.asarray(image)).colour
+    if colour is None:
+        return
+    bad = int(np.count_nonzero(~np.isfinite(colour).all(axis=-1)))  # colour is (H, W, 1 or 3)
+    if bad:
+        pixels = colour.shape[0] * colour.shape[1]
+        warnings.warn(f"{bad} of {pixels} pixels are NaN or inf (the scene or its integrator gives non-finite "
+                      "values); they stay so in the image", stacklevel=3)
 
 
 def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,

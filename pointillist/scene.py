@@ -249,12 +249,16 @@ def load_scene(path: str | Path, params: dict[str, str] | None = None):
 
 
 def check_scene_file(path: str | Path) -> Path:
-    """``path`` as a Path; UsageError unless it is an existing file (a folder is named as such)."""
-    path = Path(path)
-    if path.is_dir():
-        raise UsageError(f"scene: {path} is a folder, expected a scene XML file")
-    if not path.is_file():
-        raise UsageError(f"scene: no such file: {path}")
+    """``path`` as a Path; UsageError unless it is an existing file (a folder is named as such) whose
+    full name is UTF-8 (Mitsuba takes file names as UTF-8 text only)."""
+    from pointillist.files import input_file
+
+    path = input_file(path, "scene")
+    try:
+        str(path.resolve()).encode("utf-8")
+    except UnicodeEncodeError:
+        raise UsageError(f"scene: {path}: its name or its folder's is not UTF-8 text, and Mitsuba reads only "
+                         "UTF-8 file names; rename it") from None
     return path
 
 

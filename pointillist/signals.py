@@ -419,6 +419,8 @@ def finish(exit_status: int) -> int:
         while True:
             time.sleep(1.0)
     signum = received()
+    if signum is None and hasattr(signal, "sigpending"):  # sent, held by the mask just set: it counts
+        signum = next((s for s in SIGNALS if s in signal.sigpending()), None)
     if signum is not None and exit_status == 0:
         report(signum)
         return STATUS[signum]

@@ -56,7 +56,8 @@ def run_cli(*args: str, cwd: str | os.PathLike | None = None, env: dict | None =
     """Run ``python -m pointillist ARGS`` in a subprocess; returns the completed process."""
     environment = dict(os.environ, **(env or {}))
     return subprocess.run([sys.executable, "-m", "pointillist", *map(str, args)], cwd=cwd or ROOT,
-                          env=environment, capture_output=True, text=True, timeout=timeout)
+                          env=environment, capture_output=True, text=True, errors="surrogateescape",
+                          timeout=timeout)
 
 
 @pytest.fixture

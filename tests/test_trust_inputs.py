@@ -515,3 +515,129 @@ def test_grey_with_alpha_stays_grey_and_post_warns_as_every_command(cli, tmp_pat
     with Image.open(tmp_path / "out.png") as out:
         assert out.mode == "L"
         np.testing.assert_array_equal(np.asarray(out), grey)
+
+
+def test_file_names_that_are_not_utf8(cli, tmp_path):
+    """New round: an EXR named with bytes that are not UTF-8 (a Latin-1 name on a UTF-8 system) was
+    refused by OpenEXR after the render ("use write(path: str)..."), and such a scene gave four lines
+    of nanobind's signature. EXRs now go through Python files (any name the system takes); Mitsuba
+    reads only UTF-8 names, so such a scene is refused in one line before the work."""
+    import shutil
+
+    from pointillist.imaging.io import read_exr
+
+    folder = os.fsencode(tmp_path)
+    exr = os.fsdecode(folder + b"/r\xff.exr")
+    done = cli("render", SCENES / "default.xml", "-D", "res=8", "--spp", "4", "-o", exr)
+    assert done.returncode == 0, done.stderr
+    image, meta, _ = read_exr(exr)
+    assert image.shape == (8, 8, 3) and meta["spp"] == 4
+    png = os.fsdecode(folder + b"/p\xff.png")
+    assert cli("post", exr, "-o", png).returncode == 0 and os.path.isfile(png)
+    scene = os.fsdecode(folder + b"/s\xff.xml")
+    shutil.copy(SCENES / "default.xml", scene)
+    for command in (["render", scene, "-o", tmp_path / "x.exr"], ["verify", scene]):
+        done = cli(*command)
+        assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
+        assert "is not UTF-8 text, and Mitsuba reads only UTF-8 file names" in done.stderr
+
+
+@pytest.mark.parametrize("encoding, compress", [("gzip", "gzip"), ("bzip2", "bz2")])
+@pytest.mark.parametrize("detached", [False, True], ids=["attached", "detached"])
+def test_a_compressed_nrrd_that_inflates_beyond_its_header_is_refused_while_streaming(tmp_path, encoding, compress,
+                                                                                         detached):
+    """New round: a 3 MB gzip NRRD whose header says 8x8x8 bytes inflated to 3 GB (6.4 GB of
+    memory, 25 s) before pynrrd's size error. The data is now measured while it streams: 64 MB of
+    zeros behind an 8x8x8 header is refused after a megabyte; the same header with its 512 bytes reads."""
+    import bz2
+    import gzip
+    import tracemalloc
+
+    from pointillist.imaging.volumes import load_volume
+
+    codec = {"gzip": gzip, "bz2": bz2}[compress]
+    header = f"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 8 8 8\nencoding: {encoding}\n"
+    good = np.arange(512, dtype=np.uint8)
+    for name, payload in (("bomb", bytes(64 << 20)), ("good", good.tobytes())):
+        data = codec.compress(payload)
+        if detached:
+            (tmp_path / f"{name}.raw.gz").write_bytes(data)
+            (tmp_path / f"{name}.nhdr").write_text(header + f"data file: {name}.raw.gz\n\n")
+        else:
+            (tmp_path / f"{name}.nrrd").write_bytes(header.encode() + b"\n" + data)
+    suffix = ".nhdr" if detached else ".nrrd"
+    tracemalloc.start()
+    with pytest.raises(ValueError, match=f"its {encoding} data inflates to more than the 512 bytes"):
+        load_volume(tmp_path / f"bomb{suffix}")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 16 << 20, peak
+    with pytest.warns(UserWarning, match="without 'space directions'"):
+        volume = load_volume(tmp_path / f"good{suffix}")
+    np.testing.assert_array_equal(np.asarray(volume.data).ravel(), good)
+
+
+@pytest.mark.parametrize("make, says", [
+    (lambda tmp: "", "expected a file name, got an empty one"),
+    (lambda tmp: tmp, "is a folder, expected a file"),
+    (lambda tmp: "/dev/null", "is not a regular file (a device, a pipe or a socket: it may never end)"),
+    (lambda tmp: (os.mkfifo(tmp / "fifo"), tmp / "fifo")[1], "is not a regular file"),
+    (lambda tmp: tmp / "missing.png", "no such file"),
+], ids=["empty", "folder", "device", "fifo", "missing"])
+def test_an_input_that_is_not_a_file_says_what_it_is(cli, tmp_path, make, says):
+    """New round: a folder, a FIFO, /dev/stdin and /dev/null given as post's input, a LUT file or
+    compare's reference were all "no such file"; an empty name meant the current folder."""
+    name = make(tmp_path)
+    image = tmp_path / "in.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((4, 4), np.uint8)).save(image)
+    for argv, prefix in ((["post", name, "-o", tmp_path / "o.png"], "input"),
+                         (["post", image, "-o", tmp_path / "o.png", "--steps", f"lut:file={name}"],
+                          "--steps: lut: file"),
+                         (["compare", SCENES / "default.xml", "--reference", name, "--out", tmp_path / "c"],
+                          "--reference"),
+                         (["render", name, "-o", tmp_path / "r.exr"], "scene")):
+        done = cli(*argv, timeout=60)
+        assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, (argv, done.stderr)
+        assert f": error: {prefix}: " in done.stderr and says in done.stderr, (argv, done.stderr)
+
+
+@pytest.mark.parametrize("argv", [
+    ["render", SCENES / "default.xml", "-o", ""],
+    ["mip", "", "-o", "{tmp}/m.png"],
+    ["verify", ""],
+    ["mip", SCENES / "phantom64.vol", "-o", "{tmp}/m.png", "--window", " "],
+    ["post", SCENES / "sun_sky.exr", "-o", "{tmp}/p.png", "--steps", ""],
+], ids=["output", "volume", "verify-scenes", "window", "steps"])
+def test_an_empty_argument_is_refused(cli, tmp_path, argv):
+    """New round: ``-o ''`` said "folder out does not exist", ``mip ''`` read the current folder as a
+    DICOM series, ``verify ''`` checked every scene under the current folder, ``--window ''`` meant
+    the default. An empty or blank value is now a usage error naming the argument."""
+    done = cli(*[str(a).format(tmp=tmp_path) for a in argv], cwd=tmp_path)
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
+    assert "expected a value, got an empty one" in done.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_non_finite_images_are_said(cli, tmp_path):
+    """New round: a scene whose light is NaN rendered an image of NaN with exit 0 and no word (a
+    progressive render warned); ``post`` turned NaN into black without a word when no step ran (the
+    tone steps warn); an all-NaN volume projected to an image of zeros silently."""
+    scene = tmp_path / "nan.xml"
+    scene.write_text('<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"><film type="hdrfilm">'
+                     '<integer name="width" value="8"/><integer name="height" value="4"/></film></sensor>'
+                     '<emitter type="constant"><rgb name="radiance" value="nan"/></emitter></scene>')
+    for extra in ([], ["--tiles", "2x1"]):
+        done = cli("render", scene, "-o", tmp_path / "nan.exr", *extra)
+        assert done.returncode == 0, done.stderr
+        assert done.stderr.splitlines() == ["pointillist render: warning: 32 of 32 pixels are NaN or inf (the scene "
+                                            "or its integrator gives non-finite values); they stay so in the image"]
+    done = cli("post", tmp_path / "nan.exr", "-o", tmp_path / "nan.png")
+    assert done.returncode == 0 and done.stderr.splitlines() == [
+        "pointillist post: warning: the preview replaced 96 non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)"]
+    np.save(tmp_path / "nan.npy", np.full((4, 4, 4), np.nan, np.float32))
+    done = cli("mip", tmp_path / "nan.npy", "-o", tmp_path / "m.exr", "--size", "8")
+    assert done.returncode == 0 and "no voxel is finite (all NaN or inf)" in done.stderr
+    done = cli("render", SCENES / "default.xml", "-D", "res=8", "-o", tmp_path / "fine.exr")
+    assert done.returncode == 0 and done.stderr == ""  # a finite image: no word

@@ -364,7 +364,7 @@ def process_docstring(app, what, name, obj, options, lines):
     constants without a doc comment: their value (autodoc would show their type's docstring)."""
     if what == "class" and is_plugin_class(obj):
         title = plugin_title(inspect.getdoc(obj) or "Mitsuba plugin")[0]
-        plugin = obj.PLUGIN_NAME  # given by pointillist.plugins.register(): the module's file name
+        plugin = obj.__module__.rsplit(".", 1)[-1]  # a plugin's name is its module's file name
         lines[:] = [f"{title}. A Mitsuba plugin; its parameters and behaviour: :ref:`plugin-{plugin}`.", ""]
         return
     if what in ("data", "attribute"):

@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``pointillist post`` to ``parser``."""
     parser.add_argument("input", nargs="?", help="input image: EXR render, or PNG/JPEG/TIFF")
     parser.add_argument("-o", "--output", help="output .png or .exr (required unless --list-steps)")
-    parser.add_argument("--steps", default="", metavar="STEPS",
+    parser.add_argument("--steps", metavar="STEPS",
                         help='steps separated by ";", e.g. "tonemap:reinhard,exposure=1;gamma:2.2"')
     parser.add_argument("--step", action="append", default=[], metavar="STEP",
                         help="one step (repeatable; runs after --steps)")
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     if args.list_steps:
         print("\n".join(step_list()))
         return 0
-    result = post_process(args.input, args.output, steps=args.steps, step=args.step, dither=args.dither,
+    result = post_process(args.input, args.output, steps=args.steps or "", step=args.step, dither=args.dither,
                           report=args.report, plot=args.plot, plot_file=args.plot_file)
     for name, stats, extra in result.reports:
         print(f"{name}: {stats}")

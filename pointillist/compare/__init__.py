@@ -37,6 +37,7 @@ from pointillist.compare.records import RenderRecord, SceneFacts, Task, record_j
 from pointillist.compare.sweep import (REFERENCE_SAMPLER, REFERENCE_SEED, prerender_sweep, render_one,
                                        render_reference, run_sweep)
 from pointillist.errors import UsageError
+from pointillist.files import input_file
 
 __all__ = ["compare_scene", "CompareResult", "sweep_tasks", "DEFAULT_SPP", "DEFAULT_METHODS", "Task", "RenderRecord",
            "render_one", "run_sweep", "prerender_sweep", "REFERENCE_SAMPLER", "REFERENCE_SEED", "MAX_SEEDS"]
@@ -125,8 +126,8 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
     tasks = sweep_tasks(methods, spp, seeds)
     scene = check_scene_file(scene)
     out = Path(out_dir) if out_dir else Path("out") / "compare" / scene.stem
-    if reference is not None and not Path(reference).is_file():
-        raise UsageError(f"--reference: no such file: {reference}")
+    if reference is not None:
+        input_file(reference, "--reference")
     plan = _plan(scene, out, reference, report)
     pointillist.setup(plugins=False)  # parsing needs the variant; building the scene, the plugins
     inputs = scene_inputs(parse_scene(scene, params))

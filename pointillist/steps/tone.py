@@ -8,11 +8,11 @@ Examples: ``--steps "tonemap:reinhard,exposure=1;gamma:2.2"``,
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 
 from pointillist.imaging import colour, tone
+from pointillist.files import input_file
 from pointillist.steps import step
 
 
@@ -59,9 +59,7 @@ def _grey(image):
 
 @step("lut", params=("file",), help="apply a 256-entry table read from a text or .npy file (one value per level)")
 def _lut(image, file):
-    path = Path(str(file))
-    if not path.is_file():
-        raise ValueError(f"lut: file: no such file: {path}")
+    path = input_file(str(file), "file")
     try:
         table = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, ndmin=1)
     except (OSError, ValueError) as error:
