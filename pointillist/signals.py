@@ -136,16 +136,13 @@ class _Boundary:
         runner = threading.Thread(target=_run_hooks, args=(hooks,), daemon=True)
         runner.start()
         runner.join(max(end - time.monotonic(), 0.0))
-        self.lock.acquire()  # never released: the process ends below
-        for name in list(self.temporary):
-            with contextlib.suppress(OSError):
-                os.unlink(name)
+        self.lock.acquire()  # never released: no temporary file is made from here on
         _end_children()
+        line = b""
         if not self.reported:
             why = "second signal" if second else f"it did not stop within {GRACE_SECONDS:g} s"
-            with contextlib.suppress(OSError):
-                os.write(stderr, f"{command}: {message(first)}; stopped at once ({why})\n".encode())
-        os._exit(STATUS[first])
+            line = f"{command}: {message(first)}; stopped at once ({why})\n".encode()
+        _remove_and_exit([os.fsencode(name) for name in self.temporary], stderr, line, STATUS[first])
 
     def close(self) -> None:
         self.stopping = True
@@ -176,6 +173,29 @@ def _run_hooks(hooks) -> None:
             hook()
         except BaseException:  # noqa: BLE001 - the process is ending; a failing hook must not stop that
             pass
+
+
+def _remove_and_exit(names: list[bytes], fd: int, line: bytes, status: int) -> None:
+    """Remove the temporary files ``names``, write ``line`` to ``fd`` and end the process, without
+    letting another thread run Python in between: a writer that reopens its temporary file by name
+    (matplotlib, Pillow) would otherwise make it again after its removal. ``os.unlink`` lets other
+    threads run during the call; libc's, called through ``ctypes.PyDLL``, keeps the interpreter
+    lock, and so does every step to the exit (no forced switch either)."""
+    import ctypes
+
+    sys.setswitchinterval(1000.0)
+    try:
+        libc = ctypes.PyDLL(None)
+        unlink, write = libc.unlink, libc.write
+    except (OSError, AttributeError):  # no libc symbols in this process: Python's own calls
+        unlink, write = (lambda name: os.unlink(name)), (lambda f, data, n: os.write(f, data))
+    for name in names:
+        with contextlib.suppress(OSError):
+            unlink(name)
+    if line:
+        with contextlib.suppress(OSError):
+            write(fd, line, len(line))
+    os._exit(status)
 
 
 def _descendants(pid: int) -> list[int]:

@@ -600,6 +600,9 @@ def test_an_input_that_is_not_a_file_says_what_it_is(cli, tmp_path, make, says):
                          (["render", name, "-o", tmp_path / "r.exr"], "scene")):
         done = cli(*argv, timeout=60)
         assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, (argv, done.stderr)
+        if name == "":  # the parser refuses an empty argument first: "argument --reference: expected a value, ..."
+            assert "got an empty one" in done.stderr, (argv, done.stderr)
+            continue
         assert f": error: {prefix}: " in done.stderr and says in done.stderr, (argv, done.stderr)
 
 
@@ -641,3 +644,41 @@ def test_non_finite_images_are_said(cli, tmp_path):
     assert done.returncode == 0 and "no voxel is finite (all NaN or inf)" in done.stderr
     done = cli("render", SCENES / "default.xml", "-D", "res=8", "-o", tmp_path / "fine.exr")
     assert done.returncode == 0 and done.stderr == ""  # a finite image: no word
+
+
+_REOPENING_WRITER = textwrap.dedent("""
+    import os, signal, sys, time
+    from PIL import Image
+    from pointillist.console import main
+
+    def save(self, fp, *args, **kwargs):  # a writer that opens its file by name again and again (as
+        os.kill(os.getpid(), signal.SIGTERM)  # matplotlib and Pillow do), stopped at once meanwhile
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(3000):
+            with open(fp, "wb") as handle:
+                handle.write(b"partial")
+            time.sleep(0.001)
+
+    Image.Image.save = save
+    sys.argv = ["pointillist"] + sys.argv[1:]
+    main()
+""")
+
+
+def test_a_writer_that_reopens_its_file_by_name_leaves_nothing(tmp_path):
+    """Found by the twenty-moments test: a signal that stopped ``post --plot`` while matplotlib wrote
+    the histogram left its temporary file: the file was removed, then the writer (which opens it by
+    name) made it again before the exit. Removing the files and ending the process now happen
+    without another thread running Python in between."""
+    from PIL import Image
+
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "in.png")
+    out = tmp_path / "out"
+    out.mkdir()
+    for _ in range(5):
+        done = subprocess.run([sys.executable, "-c", _REOPENING_WRITER, "post", str(tmp_path / "in.png"), "-o",
+                               str(out / "x.png"), "--steps", "gamma:2"], capture_output=True, text=True,
+                              timeout=120, cwd=ROOT)
+        assert done.returncode == 143, done.stderr
+        assert done.stderr.splitlines() == ["pointillist post: terminated (SIGTERM); stopped at once (second signal)"]
+        assert list(out.iterdir()) == []
