@@ -40,10 +40,12 @@ def main() -> None:
         status = command_line()
     except SystemExit as done:  # argparse: --help, --version, a usage error (already printed)
         status = done.code if isinstance(done.code, int) else (0 if done.code is None else 2)
-    status = signals.finish(status)
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
+    # the last thing before the exit: a signal that landed up to here makes the status 130 / 143
+    # (other threads may still take a signal after it: microseconds before the exit)
+    status = signals.finish(status)
     # os._exit, not sys.exit: the status decided with the signals blocked is the one the process
     # ends with (no signal can land in the interpreter's tear-down); every output is closed by now.
     os._exit(status)

@@ -708,6 +708,17 @@ def _handled_by_pointillist(pid: int) -> bool:
     return bool((int(fields["SigBlk"], 16) | int(fields["SigCgt"], 16)) & bit)
 
 
+def _exiting(pid: int) -> bool:
+    """Whether process ``pid`` is ending: gone, a zombie, or its exit under way (``PF_EXITING`` in
+    /proc/PID/stat's flags: the kernel tears down a process of a few hundred MB for tens of
+    milliseconds after its last instruction, and delivers no signal then)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return True
+    return fields[0] in "ZX" or bool(int(fields[6]) & 0x4)
+
+
 def _command_lines(folder: Path) -> dict[str, list[str]]:
     from PIL import Image
 
@@ -760,6 +771,7 @@ def _interrupt(argv: list[str], folder: Path, moment: float, signum: int) -> dic
     finished_before = proc.poll() is not None
     if not finished_before:
         proc.send_signal(signum)
+        finished_before = _exiting(proc.pid)  # its exit had begun: the kernel drops the signal
     stdout, stderr = proc.communicate(timeout=240)
     return {"rc": proc.returncode, "stderr": stderr, "finished_before": finished_before,
             "leftovers": _leftovers(folder)}
