@@ -29,7 +29,7 @@ def main() -> None:
     """Run ``pointillist`` with ``sys.argv`` and end the process with the command's exit status."""
     from pointillist import signals
 
-    signals.install("pointillist")
+    signals.install("pointillist", deadline=True)
     if _HELD is not None:
         # let the two through (a signal held so far is recorded now), also when the process was
         # started with them blocked: an inherited mask would otherwise hold them for ever

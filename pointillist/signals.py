@@ -13,11 +13,12 @@ console script does) the handlers only record the signal:
   progressive render) ask :func:`received` instead and stop after the step in flight.
 * **stop now**: a second signal, or :data:`GRACE_SECONDS` after the first when the command has not
   ended by itself (a render kernel, a filter, a cluster that takes minutes does not return to
-  Python): a watcher thread, woken through :func:`signal.set_wakeup_fd` (so it runs while the main
-  thread is in native code), runs the hooks registered with :func:`on_abandon` (a progressive render
+  Python; only under the console script, which owns the process: ``install(deadline=True)``): a
+  watcher thread, woken through :func:`signal.set_wakeup_fd` (so it runs while the main thread is
+  in native code), runs the hooks registered with :func:`on_abandon` (a progressive render
   writes the passes done) for what is left of :data:`STOP_SECONDS`, removes the temporary files of
   writes in flight (:func:`temporary_file`), prints one line and ends the process with 130 / 143.
-  Whatever the process is doing, a signal ends it within :data:`STOP_SECONDS` (the one exception:
+  Whatever the console's process is doing, a signal ends it within :data:`STOP_SECONDS` (the one exception:
   a native call that holds the interpreter's lock all along; Dr.Jit's kernels and Mitsuba's
   renders release it).
 
@@ -66,7 +67,8 @@ STOP_SECONDS = 1.8
 class _Boundary:
     """The installed state: handlers, the wake-up pipe, the watcher thread, what was received."""
 
-    def __init__(self) -> None:
+    def __init__(self, deadline: bool = False) -> None:
+        self.deadline = deadline  # the first signal ends the process within STOP_SECONDS (the console's)
         self.lock = threading.Lock()
         self.received: list[int] = []
         self.hooks: list[Callable[[], None]] = []
@@ -112,10 +114,12 @@ class _Boundary:
                     return
                 self.drain()
                 count = len(self.received)
-            if count and first_at is None:
+            if count and first_at is None and self.deadline:
                 first_at = time.monotonic()
             if count >= 2 or (first_at is not None and time.monotonic() >= first_at + GRACE_SECONDS):
-                self.abandon(count >= 2, first_at + STOP_SECONDS)
+                now = time.monotonic()
+                self.abandon(count >= 2, max(now + STOP_SECONDS - GRACE_SECONDS,
+                                             now if first_at is None else first_at + STOP_SECONDS))
 
     def abandon(self, second: bool, end: float) -> None:
         """Stop now: run the hooks until ``end`` (monotonic seconds) at most, remove temporary files, one line, exit.
@@ -235,16 +239,20 @@ def _print_line(text: str) -> None:
         sys.stderr.flush()
 
 
-def install(command: str | None = None) -> bool:
+def install(command: str | None = None, *, deadline: bool = False) -> bool:
     """Install the boundary (main thread only); True when this call installed it.
 
-    Idempotent: a second call only updates the command name used in the messages.
+    ``deadline``: the boundary owns the process (the console script): a command that has not
+    stopped :data:`GRACE_SECONDS` after the first signal is stopped at once. Without it (the command
+    line run inside a notebook or a script, :func:`pointillist.cli.main`) only a second signal does
+    that: an interrupted cell must not end the kernel's process. Idempotent: a second call only
+    updates the command name used in the messages.
     """
     global _STATE
     if _STATE is None:
         if threading.current_thread() is not threading.main_thread():
             return False
-        _STATE = _Boundary()
+        _STATE = _Boundary(deadline)
         installed_now = True
     else:
         installed_now = False

@@ -682,3 +682,28 @@ def test_a_writer_that_reopens_its_file_by_name_leaves_nothing(tmp_path):
         assert done.returncode == 143, done.stderr
         assert done.stderr.splitlines() == ["pointillist post: terminated (SIGTERM); stopped at once (second signal)"]
         assert list(out.iterdir()) == []
+
+
+def test_inside_a_notebook_one_signal_never_ends_the_process(tmp_path):
+    """The deadline is the console script's (it owns the process): the command line run inside a
+    notebook (``pointillist.cli.main``) keeps the first signal a request, stopped at the next safe
+    point, however long that takes; the process lives on."""
+    code = textwrap.dedent("""
+        import os, signal, threading, time
+        import pointillist.post as post
+        from pointillist.cli import main
+
+        real = post.apply_steps
+
+        def slow(*args, **kwargs):  # a step that returns to Python only after 3 s
+            threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT)).start()
+            time.sleep(3)
+            return real(*args, **kwargs)
+
+        post.apply_steps = slow
+        print("status", main(["post", %r, "-o", %r, "--steps", "gamma:2"]), flush=True)
+        print("still alive")
+    """) % (str(SCENES / "sun_sky.exr"), str(tmp_path / "never.png"))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.stdout.split() == ["status", "130", "still", "alive"], (done.stdout, done.stderr)
+    assert done.stderr.splitlines() == ["pointillist post: interrupted"] and list(tmp_path.iterdir()) == []
