@@ -46,8 +46,8 @@ import numpy as np
 
 from pointillist.errors import UsageError
 
-__all__ = ["STEPS", "REPEATS", "SCENE_TIMEOUT", "Check", "SceneReport", "check_scene", "verify_scenes", "scene_files",
-           "mitsuba_render"]
+__all__ = ["STEPS", "REPEATS", "SCENE_TIMEOUT", "REFUSED_BY_BOTH", "Check", "SceneReport", "check_scene",
+           "verify_scenes", "scene_files", "mitsuba_render"]
 
 #: The checks :func:`check_scene` can run, in order.
 STEPS = ("mitsuba", "whitted", "samplers", "compare", "progressive")
@@ -57,6 +57,11 @@ REPEATS = 3
 
 #: Seconds a scene's own process may take in :func:`verify_scenes` before it is stopped.
 SCENE_TIMEOUT = 600.0
+
+
+#: What the ``mitsuba`` check says of a scene that Mitsuba and pointillist both refuse (a pass:
+#: they agree; the summary counts these apart, since nothing was rendered).
+REFUSED_BY_BOTH = "refused, as Mitsuba refuses it"
 
 
 @dataclass
@@ -79,6 +84,11 @@ class SceneReport:
     @property
     def ok(self) -> bool:
         return bool(self.checks) and all(check.ok for check in self.checks)
+
+    @property
+    def refused(self) -> bool:
+        """Whether both Mitsuba and pointillist refused the scene (they agree; nothing was rendered)."""
+        return any(check.name == "mitsuba" and check.detail.startswith(REFUSED_BY_BOTH) for check in self.checks)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -156,7 +166,7 @@ def _check_mitsuba(path: Path, *, spp: int, seed: int, params: dict[str, str], w
         ours = ours_render()
     except UsageError as error:
         if refused:
-            return Check("mitsuba", True, f"refused, as Mitsuba refuses it: {error}")
+            return Check("mitsuba", True, f"{REFUSED_BY_BOTH}: {error}")
         return Check("mitsuba", False, f"pointillist refuses what Mitsuba renders: {error}")
     if refused:
         return Check("mitsuba", False, f"pointillist renders what Mitsuba refuses ({refused})")

@@ -159,6 +159,11 @@ def test_verify_command_reports_each_scene_and_a_crash(cli, tmp_path):
     assert done.returncode == 0, done.stderr
     assert "ok   mitsuba: bit-identical to Mitsuba (24x24x3 at 2 spp)" in done.stdout
     assert done.stdout.strip().splitlines()[-1] == "1 passed, 0 failed"
+    # a -D typo both refuse: agreement, but the summary says that nothing was rendered
+    done = cli("verify", tmp_path / "a.xml", "--only", "mitsuba", "-D", 'res=8"<&')
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == ("1 passed (1 of them refused by Mitsuba and pointillist alike: "
+                                                     "nothing rendered), 0 failed")
     bad = cli("verify", tmp_path / "missing.xml")
     assert bad.returncode == 2 and "no such file or folder" in bad.stderr and len(bad.stderr.splitlines()) == 1
     bad = cli("verify", tmp_path / "a.xml", "--only", "mitsuba,nothing")

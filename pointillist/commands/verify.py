@@ -47,5 +47,7 @@ def run(args: argparse.Namespace) -> int:
         for check in report.checks:
             print(f"     {'ok  ' if check.ok else 'FAIL'} {check.name}: {check.detail}")
     failed = sum(not report.ok for report in reports)
-    print(f"{len(reports) - failed} passed, {failed} failed")
+    refused = sum(report.ok and report.refused for report in reports)
+    both = f" ({refused} of them refused by Mitsuba and pointillist alike: nothing rendered)" if refused else ""
+    print(f"{len(reports) - failed} passed{both}, {failed} failed")
     return 1 if failed else 0
