@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         status = _run(args, name)
         signum = signals.received()
         if signum is not None and status == 0:
-            signals.report(signum)
+            signals.report(signum, name)
             status = signals.status(signum)
         return status
 

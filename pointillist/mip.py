@@ -494,7 +494,9 @@ def _load(volume_path, spacing, load: dict) -> tuple[Any, float, list[str]]:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         volume = load_volume(volume_path, spacing=list(spacing) if spacing else None, **load)
-        if np.issubdtype(volume.data.dtype, np.floating) and not np.isfinite(volume.data).any():
+        # slice by slice, stopping at the first finite voxel (no volume-sized mask)
+        if np.issubdtype(volume.data.dtype, np.floating) and not any(np.isfinite(plane).any()
+                                                                     for plane in volume.data):
             warnings.warn(f"volume: {volume_path}: no voxel is finite (all NaN or inf): the projection shows "
                           "only the background", stacklevel=2)
     signals.check()

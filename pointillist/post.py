@@ -206,7 +206,8 @@ def post_process(source: str | os.PathLike | None, output: str | os.PathLike | N
     elif linear:  # the sRGB preview of linear values (no step ran, or none left display values)
         import numpy as np
 
-        bad = int(np.count_nonzero(~np.isfinite(np.asarray(current))))
+        current = np.asarray(current)  # evaluated once: counted here, then written (and plotted)
+        bad = int(np.count_nonzero(~np.isfinite(current)))
         if bad:
             notes.append(f"the preview replaced {bad} non-finite value(s) (NaN -> 0, +inf -> white, -inf -> 0)")
         write_png(out, current, inputs=inputs)

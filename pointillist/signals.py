@@ -117,9 +117,10 @@ class _Boundary:
             if count and first_at is None and self.deadline:
                 first_at = time.monotonic()
             if count >= 2 or (first_at is not None and time.monotonic() >= first_at + GRACE_SECONDS):
-                now = time.monotonic()
-                self.abandon(count >= 2, max(now + STOP_SECONDS - GRACE_SECONDS,
-                                             now if first_at is None else first_at + STOP_SECONDS))
+                # the hooks' time ends STOP_SECONDS after the first signal (the grace included);
+                # without a deadline, what is left after a grace from the second signal on
+                end = (first_at if first_at is not None else time.monotonic() - GRACE_SECONDS) + STOP_SECONDS
+                self.abandon(count >= 2, end)
 
     def abandon(self, second: bool, end: float) -> None:
         """Stop now: run the hooks until ``end`` (monotonic seconds) at most, remove temporary files, one line, exit.

@@ -152,13 +152,21 @@ def _check_inflated_size(path: Path, header: dict, nrrd) -> None:
         return
 
 
+def _data_file(path: Path, header: dict) -> Path | None:
+    """The detached data file the NRRD header of ``path`` names (``data file``), resolved against the
+    header's folder as pynrrd resolves it; None for data inside the file."""
+    name = header.get("data file") or header.get("datafile")
+    if not name or not str(name).strip():
+        return None
+    data = Path(str(name).strip())
+    return data if data.is_absolute() else path.parent / data
+
+
 def _data_start(path: Path, header: dict, nrrd) -> tuple[Path, int]:
     """Where an NRRD's data starts: after the header in the file itself, or at the start of its
     detached data file (after its ``line skip`` lines)."""
-    name = header.get("data file") or header.get("datafile")
-    if name and str(name).strip():
-        data = Path(str(name).strip())
-        data = data if data.is_absolute() else path.parent / data
+    data = _data_file(path, header)
+    if data is not None:
         with open(data, "rb") as stream:
             for _ in range(max(int(header.get("line skip", 0) or 0), 0)):
                 stream.readline()
@@ -222,11 +230,9 @@ def nrrd_data_files(path: Path) -> list[Path]:
         header = nrrd.read_header(str(path))
     except Exception:  # noqa: BLE001 - reading the volume reports it
         return []
-    name = header.get("data file") or header.get("datafile")
-    if not name or not str(name).strip():
+    data = _data_file(path, header)
+    if data is None:
         return []
-    data = Path(str(name).strip())
-    data = data if data.is_absolute() else path.parent / data
     inside = os.path.realpath(path.parent)
     if os.path.commonpath([inside, os.path.realpath(data)]) != inside:
         _warn(f"volume: {path}: its data file {data} lies outside the header's folder")
