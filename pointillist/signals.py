@@ -46,8 +46,8 @@ from pathlib import Path
 from pointillist.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
-           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "forget_file", "GRACE_SECONDS",
-           "STOP_SECONDS", "held", "report", "finish"]
+           "check", "status", "message", "deferred", "on_abandon", "temporary_file", "new_folders", "forget_file",
+           "GRACE_SECONDS", "STOP_SECONDS", "held", "report", "finish"]
 
 #: The signals the boundary handles.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -73,6 +73,7 @@ class _Boundary:
         self.received: list[int] = []
         self.hooks: list[Callable[[], None]] = []
         self.temporary: set[str] = set()
+        self.folders: list[str] = []  # folders made for writes in flight (removed when still empty)
         self.command = "pointillist"
         self.read_fd, self.write_fd = os.pipe()
         for fd in (self.read_fd, self.write_fd):
@@ -147,7 +148,8 @@ class _Boundary:
         if not self.reported:
             why = "second signal" if second else f"it did not stop within {GRACE_SECONDS:g} s"
             line = f"{command}: {message(first)}; stopped at once ({why})\n".encode()
-        _remove_and_exit([os.fsencode(name) for name in self.temporary], stderr, line, STATUS[first])
+        _remove_and_exit([os.fsencode(name) for name in self.temporary],
+                         [os.fsencode(name) for name in reversed(self.folders)], stderr, line, STATUS[first])
 
     def close(self) -> None:
         self.stopping = True
@@ -180,8 +182,9 @@ def _run_hooks(hooks) -> None:
             pass
 
 
-def _remove_and_exit(names: list[bytes], fd: int, line: bytes, status: int) -> None:
-    """Remove the temporary files ``names``, write ``line`` to ``fd`` and end the process, without
+def _remove_and_exit(names: list[bytes], folders: list[bytes], fd: int, line: bytes, status: int) -> None:
+    """Remove the temporary files ``names`` and the ``folders`` made for them (those left empty,
+    deepest first), write ``line`` to ``fd`` and end the process, without
     letting another thread run Python in between: a writer that reopens its temporary file by name
     (matplotlib, Pillow) would otherwise make it again after its removal. ``os.unlink`` lets other
     threads run during the call; libc's, called through ``ctypes.PyDLL``, keeps the interpreter
@@ -191,12 +194,15 @@ def _remove_and_exit(names: list[bytes], fd: int, line: bytes, status: int) -> N
     sys.setswitchinterval(1000.0)
     try:
         libc = ctypes.PyDLL(None)
-        unlink, write = libc.unlink, libc.write
+        unlink, rmdir, write = libc.unlink, libc.rmdir, libc.write
     except (OSError, AttributeError):  # no libc symbols in this process: Python's own calls
-        unlink, write = (lambda name: os.unlink(name)), (lambda f, data, n: os.write(f, data))
+        unlink, rmdir, write = os.unlink, os.rmdir, (lambda f, data, n: os.write(f, data))
     for name in names:
         with contextlib.suppress(OSError):
             unlink(name)
+    for name in folders:  # rmdir removes only an empty folder
+        with contextlib.suppress(OSError):
+            rmdir(name)
     if line:
         with contextlib.suppress(OSError):
             write(fd, line, len(line))
@@ -386,6 +392,37 @@ def temporary_file(create: Callable[[], str]) -> str:
         name = create()
         state.temporary.add(str(name))
     return name
+
+
+@contextlib.contextmanager
+def new_folders(path: str | os.PathLike) -> Iterator[None]:
+    """Make the missing folders above the file ``path`` for a write in the block: they belong to the
+    write in flight, removed (when left empty) if the block fails or the process is stopped at once
+    in it, kept once it succeeded. Outside the boundary only the failure removes them."""
+    made, folder = [], Path(path).parent
+    while not folder.exists():  # top-down, the outermost missing folder first
+        made.insert(0, folder)
+        folder = folder.parent
+    state = _STATE
+    with held():
+        if state is not None:
+            with state.lock:
+                state.folders.extend(str(folder) for folder in made)
+        for folder in made:
+            folder.mkdir(exist_ok=True)
+    try:
+        yield
+    except BaseException:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+    finally:
+        if state is not None:
+            with state.lock:
+                for folder in made:
+                    with contextlib.suppress(ValueError):
+                        state.folders.remove(str(folder))
 
 
 def forget_file(name: str | os.PathLike) -> None:

@@ -707,3 +707,42 @@ def test_inside_a_notebook_one_signal_never_ends_the_process(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.stdout.split() == ["status", "130", "still", "alive"], (done.stdout, done.stderr)
     assert done.stderr.splitlines() == ["pointillist post: interrupted"] and list(tmp_path.iterdir()) == []
+
+
+_STOPPED_IN_A_NEW_FOLDER = textwrap.dedent("""
+    import os, signal, sys, time
+    from pathlib import Path
+    from pointillist import signals
+    from pointillist.console import main
+
+    def run():  # a write into folders made for it, stopped at once in the middle
+        out = Path(sys.argv[1]) / "a" / "b" / "x.txt"
+        with signals.new_folders(out):
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(60)
+        return 0
+
+    import pointillist.cli as cli
+    cli.main = lambda argv=None: run()
+    main()
+""")
+
+
+def test_folders_made_for_a_write_cut_at_once_are_removed(tmp_path):
+    """Found by the twenty-moments test on an empty kernel cache: compare's reference render was
+    stopped at once while its EXR was written, and left its new folder empty. Folders made for a
+    write (``signals.new_folders``) are part of the write in flight: removed when it is cut, kept
+    once it succeeded."""
+    from pointillist import signals
+
+    done = subprocess.run([sys.executable, "-c", _STOPPED_IN_A_NEW_FOLDER, str(tmp_path)], capture_output=True,
+                          text=True, timeout=60, cwd=ROOT)
+    assert done.returncode == 143, done.stderr
+    assert list(tmp_path.iterdir()) == []
+    with signals.new_folders(tmp_path / "c" / "d" / "y.txt"):
+        (tmp_path / "c" / "d" / "y.txt").write_text("kept")
+    assert (tmp_path / "c" / "d" / "y.txt").read_text() == "kept"
+    with pytest.raises(OSError), signals.new_folders(tmp_path / "e" / "f" / "z.txt"):
+        raise OSError("the write failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c"]

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from pointillist import signals
 from pointillist.compare.methods import sweep_parameter
 from pointillist.distributed import json_key
 
@@ -253,6 +254,6 @@ def load_scene_facts(out_dir: str | os.PathLike, key: str) -> SceneFacts | None:
 def save_scene_facts(out_dir: str | os.PathLike, key: str, facts: SceneFacts) -> Path:
     """Store ``facts`` for scene key ``key`` (``DIR/renders/<key>/scene.json``); returns the path."""
     path = _facts_path(out_dir, key)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, asdict(facts))
+    with signals.new_folders(path):
+        write_json(path, asdict(facts))
     return path

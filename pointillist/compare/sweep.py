@@ -112,8 +112,8 @@ def render_one(scene_path: str, method: str, value: float, seed: int, params: di
     image, timing = timed_render(scene, spp=spp, seed=int(seed))
     info = scene_info(scene)  # after the render: the sampler's own rounding of spp applies
     info.update(method=method, value=float(value), seed=int(seed))
-    exr.parent.mkdir(parents=True, exist_ok=True)  # only now: an interrupted render leaves no empty folder
-    write_render(exr, image, scene, scene_path, info, timing, png=False, layout=layout)
+    with signals.new_folders(exr):  # only now, and removed if the write is cut: no empty folder left
+        write_render(exr, image, scene, scene_path, info, timing, png=False, layout=layout)
     samples = float(info["spp"])
     layers = layout.split(image).layers
     for name in ("spp", "sample_count", "samples"):
