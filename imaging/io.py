@@ -33,14 +33,6 @@ from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "to_8bit"]
 
-#: EXR header attributes that OpenEXR owns; metadata may not use these names.
-_RESERVED = {
-    "channels", "compression", "dataWindow", "displayWindow", "lineOrder",
-    "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type", "tiles",
-    "name", "version", "chunkCount",
-}
-
-
 class EXRImage(NamedTuple):
     """What :func:`read_exr` returns.
 
@@ -185,7 +177,7 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
         image = channels.pop("Y")
     else:
         image = channels.pop(next(iter(main.channels)))
-    metadata = {k: _plain(v) for k, v in main.header.items() if k not in _RESERVED}
+    metadata = {k: _plain(v) for k, v in main.header.items() if k not in checks.EXR_RESERVED}
     return EXRImage(np.ascontiguousarray(image), metadata, channels)
 
 
@@ -282,8 +274,10 @@ class _OutputCapture:
 
 
 def _plain(value: Any) -> Any:
+    """A header attribute's value as plain Python: a one-element double vector (how Mitsuba's
+    writer stores a float) is that float, other arrays lists."""
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return float(value[0]) if value.shape == (1,) and value.dtype == np.float64 else value.tolist()
     return value
 
 
@@ -300,7 +294,8 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         (H, W, 4) ``RGBA``. None: only ``layers`` (a render without colour, e.g. depth and
         normals alone).
     metadata : mapping, optional
-        Header attributes: str keys, values int, float, str or bool (stored as int).
+        Header attributes: str keys, values int, float, str or bool (stored as int); an integer
+        beyond 32 bits is stored as its decimal text (:func:`pointillist.checks.exr_attribute`).
     layers : mapping, optional
         Extra channels, each (H, W), e.g. ``{"spp": counts}``.
     inputs : iterable of paths
@@ -346,19 +341,7 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         channels[name] = np.ascontiguousarray(data)
     header: dict[str, Any] = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (metadata or {}).items():
-        if not isinstance(key, str) or not key:
-            raise TypeError(f"metadata: keys must be non-empty str, got {key!r}")
-        if key in _RESERVED:
-            raise ValueError(f"metadata: {key!r} is a reserved EXR attribute name")
-        if isinstance(value, (bool, np.bool_)):
-            value = int(value)
-        elif isinstance(value, np.integer):
-            value = int(value)
-        elif isinstance(value, np.floating):
-            value = float(value)
-        if not isinstance(value, (int, float, str)):
-            raise TypeError(f"metadata[{key!r}]: expected int, float or str, got {type(value).__name__}")
-        header[key] = value
+        header[key] = checks.exr_attribute(key, value)
 
     def write(tmp: str) -> None:
         try:  # through a Python file (OpenEXR takes a path only as UTF-8 text: not every file name is)

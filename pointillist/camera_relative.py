@@ -54,10 +54,10 @@ Mitsuba's ``aov`` integrator reports ``position`` in the rendered (camera-relati
 
 from __future__ import annotations
 
+import math
+import struct
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from pointillist import checks
 from pointillist.parsed_state import read_properties, resolving_from
@@ -73,7 +73,11 @@ PRECISION = 1e-5
 #: this from the origin (float32 coordinates there are 6.1e-5 apart).
 FAR = 1e3
 
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32_MAX = struct.unpack("<f", b"\xff\xff\x7f\x7f")[0]
+
+#: A position: (x, y, z) in float64. Plain Python floats: a plain render imports no numpy.
+Point = tuple[float, float, float]
+_ORIGIN: Point = (0.0, 0.0, 0.0)
 
 #: Plugins whose ``to_world`` is a rotation of something infinitely far (translation unused).
 _INFINITE = frozenset({"directional", "envmap", "constant", "sunsky", "timed_sunsky", "distant"})
@@ -128,10 +132,10 @@ class _Node:
     def has(self, key: str, kind: str) -> bool:
         return self.types.get(key) == kind
 
-    def point(self, key: str, default=None) -> np.ndarray | None:
+    def point(self, key: str, default: Point | None = None) -> Point | None:
         if not self.has(key, "Vector"):
-            return None if default is None else np.asarray(default, dtype=np.float64)
-        return np.array(list(self.values[key]), dtype=np.float64)
+            return default
+        return _point(self.values[key])
 
     def to_world(self):
         """The ``to_world`` the scene states (``mitsuba.ScalarAffineTransform4d``), or None."""
@@ -169,31 +173,45 @@ def _graph(state) -> list[_Node]:
     return nodes
 
 
-def _shifted(offset: np.ndarray, transform=None, then=None):
+def _point(values) -> Point:
+    """Three values (a Mitsuba vector, a numpy array, a sequence) as a :data:`Point`."""
+    x, y, z = (float(v) for v in values)
+    return (x, y, z)
+
+
+def _minus(a: Point, b: Point) -> Point:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _float32(point: Point) -> Point:
+    """Each coordinate rounded to the nearest float32 (they are within float32's range)."""
+    return _point(struct.unpack("<3f", struct.pack("<3f", *point)))
+
+
+def _shifted(offset: Point, transform=None, then: Point | None = None):
     """translate(-offset) @ transform @ translate(then), composed in float64 by Mitsuba's
     double-precision transforms (``transform`` and ``then`` optional)."""
     import mitsuba as mi
 
-    result = mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*(-offset).tolist()))
+    result = mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*_minus(_ORIGIN, offset)))
     if transform is not None:
         result = result @ transform
     if then is not None:
-        result = result @ mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*then.tolist()))
+        result = result @ mi.ScalarAffineTransform4d().translate(mi.ScalarVector3d(*then))
     return result
 
 
-def _point3(p: np.ndarray):
+def _point3(p: Point):
     import mitsuba as mi
 
-    return mi.ScalarPoint3d(*p.tolist())
+    return mi.ScalarPoint3d(*p)
 
 
-def _apply(transform, point) -> np.ndarray:
+def _apply(transform, point: Point) -> Point:
     """``transform @ point`` in float64 (``transform`` None: the point itself)."""
-    point = np.asarray(point, dtype=np.float64)
     if transform is None:
         return point
-    return np.array(list(transform @ _point3(point)), dtype=np.float64)
+    return _point(transform @ _point3(point))
 
 
 def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
@@ -215,7 +233,7 @@ def _walk(nodes: list[_Node]) -> tuple[list[int], list[int], list[int]]:
 
 
 # ------------------------------------------------------------------------------ positions
-def _sensor_position(nodes: list[_Node], node: _Node) -> np.ndarray | None:
+def _sensor_position(nodes: list[_Node], node: _Node) -> Point | None:
     """Where a sensor node sits (float64), or None for one at infinity or attached to a shape."""
     if node.name in ("distant", "irradiancemeter"):
         return None
@@ -224,10 +242,10 @@ def _sensor_position(nodes: list[_Node], node: _Node) -> np.ndarray | None:
         return _sensor_position(nodes, inner[0]) if inner else None
     if node.name == "radiancemeter" and node.has("origin", "Vector"):
         return node.point("origin")
-    return _apply(node.to_world(), np.zeros(3))
+    return _apply(node.to_world(), _ORIGIN)
 
 
-def _sensor_positions(nodes: list[_Node]) -> list[np.ndarray | None]:
+def _sensor_positions(nodes: list[_Node]) -> list[Point | None]:
     order, meshes = [], []
     pending = list(nodes[0].children)
     while pending:
@@ -241,17 +259,18 @@ def _sensor_positions(nodes: list[_Node]) -> list[np.ndarray | None]:
     return order + meshes
 
 
-def sensor_positions(state) -> list[np.ndarray | None]:
+def sensor_positions(state) -> list[Point | None]:
     """The sensors' positions in the order Mitsuba lists them (``scene.sensors()``).
 
     ``state`` is a parsed scene's ``mitsuba.parser.ParserState``. The scene's top-level objects
     come in the order the file states them (the parser's ``merge`` container lists meshes after
-    the other objects); a sensor attached to a shape (``irradiancemeter``) has no position (None).
+    the other objects); a sensor attached to a shape (``irradiancemeter``) has no position (None);
+    each position is an (x, y, z) tuple of floats.
     """
     return _sensor_positions(_graph(state))
 
 
-def _node_position(node: _Node) -> np.ndarray | None:
+def _node_position(node: _Node) -> Point | None:
     """A representative world position of a shape, light, volume or integrator node (None: unknown)."""
     matrix = node.to_world()
     if node.kind == "Shape":
@@ -260,28 +279,29 @@ def _node_position(node: _Node) -> np.ndarray | None:
         if node.name == "sphere" and node.has("center", "Vector"):
             return _apply(matrix, node.point("center"))
         if node.name == "cylinder":
-            return _apply(matrix, 0.5 * (node.point("p0", (0, 0, 0)) + node.point("p1", (0, 0, 1))))
-        return _apply(matrix, np.zeros(3))
+            p0, p1 = node.point("p0", (0.0, 0.0, 0.0)), node.point("p1", (0.0, 0.0, 1.0))
+            return _apply(matrix, _point(0.5 * (a + b) for a, b in zip(p0, p1)))
+        return _apply(matrix, _ORIGIN)
     if node.kind == "Emitter":
         if node.name in _INFINITE or node.name in _ATTACHED:
             return None
         if node.name == "point" and node.has("position", "Vector"):
             return node.point("position")
-        return _apply(matrix, np.zeros(3))
+        return _apply(matrix, _ORIGIN)
     if node.kind == "Volume":
-        return _apply(matrix, np.full(3, 0.5))          # the centre of the unit box it fills
+        return _apply(matrix, (0.5, 0.5, 0.5))          # the centre of the unit box it fills
     if matrix is not None and node.kind not in ("Sensor", "Scene"):   # e.g. the mip integrator's box
-        return _apply(matrix, np.zeros(3))
+        return _apply(matrix, _ORIGIN)
     return None
 
 
-def _stated_positions(nodes: list[_Node], world: list[int], volumes: list[int]) -> np.ndarray:
+def _stated_positions(nodes: list[_Node], world: list[int], volumes: list[int]) -> list[Point]:
     points = [_node_position(nodes[i]) for i in dict.fromkeys(world + volumes)]
-    return np.array([p for p in points if p is not None], dtype=np.float64).reshape(-1, 3)
+    return [p for p in points if p is not None]
 
 
-def stated_positions(state) -> np.ndarray:
-    """Positions the scene states for its content (shapes, lights, volumes), shape (N, 3) float64.
+def stated_positions(state) -> list[Point]:
+    """Positions the scene states for its content (shapes, lights, volumes), (x, y, z) tuples.
 
     Sensors, things at infinity, shape groups' children (their instances count) and shapes
     whose geometry comes from a file (unknown before loading) are left out.
@@ -292,11 +312,26 @@ def stated_positions(state) -> np.ndarray:
 
 
 def float32_spacing(x: float) -> float:
-    """The gap between float32 numbers at magnitude ``x`` (``numpy.spacing`` of ``float32(|x|)``)."""
-    return float(np.spacing(np.float32(abs(x))))
+    """The gap between float32 numbers at magnitude ``x`` (``numpy.spacing`` of ``float32(|x|)``).
+
+    Examples
+    --------
+    >>> float32_spacing(1.0), float32_spacing(-1e4), float32_spacing(0.0)
+    (1.1920928955078125e-07, 0.0009765625, 1.401298464324817e-45)
+    >>> float32_spacing(3.5e38), float32_spacing(float("nan"))
+    (nan, nan)
+    """
+    try:
+        (bits,) = struct.unpack("<I", struct.pack("<f", abs(float(x))))   # float32(|x|), rounded to nearest
+    except OverflowError:                                           # beyond float32's (or float64's) range
+        return math.nan
+    if bits >= 0x7F800000:                                          # inf or NaN
+        return math.nan
+    here, after = struct.unpack("<2f", struct.pack("<2I", bits, bits + 1))
+    return after - here
 
 
-def _built_positions(parsed) -> np.ndarray:
+def _built_positions(parsed) -> list[Point]:
     """The centres of the shapes' bounding boxes once Mitsuba has built the scene as written: for
     a scene whose shapes all come from files (no position stated in the XML) and whose sensor is
     far from the origin, where the rule needs to know where the content is (a Cornell box in
@@ -310,39 +345,40 @@ def _built_positions(parsed) -> np.ndarray:
         boxes = [shape.bbox() for shape in scene.shapes()] if isinstance(scene, mi.Scene) else []
     except RuntimeError:
         boxes = []
-    centres = [[0.5 * (float(box.min[i]) + float(box.max[i])) for i in range(3)] for box in boxes if box.valid()]
-    return np.array(centres, dtype=np.float64).reshape(-1, 3)
+    return [_point(0.5 * (float(box.min[i]) + float(box.max[i])) for i in range(3)) for box in boxes if box.valid()]
 
 
-def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[bool, str]:
+def recentre_rule(sensor, positions) -> tuple[bool, str]:
     """Whether a scene moves to its sensor, and why (see the module's documentation).
+
+    ``sensor``: (x, y, z) or None; ``positions``: any number of (x, y, z) (sequences or an
+    (N, 3) array; non-finite ones are ignored).
 
     Examples
     --------
-    >>> import numpy as np
-    >>> recentre_rule(np.array([0.0, -12.0, 5.0]), np.array([[0, 0, 1.25], [4, -4, 8.0]]))[0]
+    >>> recentre_rule((0.0, -12.0, 5.0), [(0, 0, 1.25), (4, -4, 8.0)])[0]
     False
-    >>> moves, reason = recentre_rule(np.array([1e4, 1e4, 1e4]), np.array([[1e4, 1e4, 1e4 - 5]]))
+    >>> moves, reason = recentre_rule((1e4, 1e4, 1e4), [(1e4, 1e4, 1e4 - 5)])
     >>> moves, reason[:64]
     (True, 'float32 spacing 0.00195 at the sensor, 17321 from the origin: > ')
     >>> reason[64:]
     '1e-05 x 5 (distance to the median position)'
-    >>> recentre_rule(np.array([0.0, 0.0, 3e3]), np.zeros((0, 3)))[0]
+    >>> recentre_rule((0.0, 0.0, 3e3), [])[0]
     True
     """
     if sensor is None:
         return False, "the rendered sensor has no position (distant or attached to a shape)"
-    if not np.all(np.abs(sensor) <= _FLOAT32_MAX):
+    sensor = _point(sensor)
+    if not all(abs(v) <= _FLOAT32_MAX for v in sensor):
         return False, "the sensor's position is not a finite float32 number"
-    positions = positions[np.all(np.isfinite(positions), axis=1)]
-    far = float(np.linalg.norm(sensor))
+    positions = [p for p in map(_point, positions) if all(map(math.isfinite, p))]
+    far = math.hypot(*sensor)
     if far == 0.0:
         return False, "the sensor is at the origin"
     if len(positions) == 0:
         return far > FAR, f"the sensor is {far:.5g} from the origin (no other stated position; moves beyond {FAR:g})"
-    # the median by hand: numpy's imports a numpy submodule on first use and the statistics module
-    # takes as long to import (tens of ms, more than the step itself, of every first load)
-    distances = sorted(np.linalg.norm(positions - sensor, axis=1).tolist())
+    # the median by hand: the statistics module takes tens of ms to import, more than the step itself
+    distances = sorted(math.hypot(*_minus(p, sensor)) for p in positions)
     half = len(distances) // 2
     near = distances[half] if len(distances) % 2 else 0.5 * (distances[half - 1] + distances[half])
     spacing = float32_spacing(far)
@@ -352,7 +388,7 @@ def recentre_rule(sensor: np.ndarray | None, positions: np.ndarray) -> tuple[boo
 
 
 # ------------------------------------------------------------------------------ moving
-def _move_to_world(node: _Node, offset: np.ndarray, *, add: bool) -> None:
+def _move_to_world(node: _Node, offset: Point, *, add: bool) -> None:
     """``to_world`` <- translate(-offset) @ to_world; with ``add``, also where the scene states none."""
     transform = node.to_world()
     if transform is None and not add:
@@ -360,11 +396,11 @@ def _move_to_world(node: _Node, offset: np.ndarray, *, add: bool) -> None:
     node.props["to_world"] = _shifted(offset, transform)
 
 
-def _move_point(node: _Node, key: str, offset: np.ndarray) -> None:
-    node.props[key] = _point3(node.point(key) - offset)
+def _move_point(node: _Node, key: str, offset: Point) -> None:
+    node.props[key] = _point3(_minus(node.point(key), offset))
 
 
-def _move_node(node: _Node, offset: np.ndarray) -> None:
+def _move_node(node: _Node, offset: Point) -> None:
     """Move one world-space node by ``-offset`` (see the module's documentation for the cases)."""
     props, name, kind = node.props, node.name, node.kind
     if kind == "Shape":
@@ -379,13 +415,13 @@ def _move_node(node: _Node, offset: np.ndarray) -> None:
             props["to_world"] = _shifted(offset, transform, center)
             return
         if name == "cylinder" and (node.has("p0", "Vector") or node.has("p1", "Vector")):
-            p0, p1 = node.point("p0", (0, 0, 0)), node.point("p1", (0, 0, 1))
+            p0, p1 = node.point("p0", (0.0, 0.0, 0.0)), node.point("p1", (0.0, 0.0, 1.0))
             transform = node.to_world()
             if transform is None:
-                props["p0"], props["p1"] = _point3(p0 - offset), _point3(p1 - offset)
+                props["p0"], props["p1"] = _point3(_minus(p0, offset)), _point3(_minus(p1, offset))
                 return
             props["to_world"] = _shifted(offset, transform, p0)
-            props["p0"], props["p1"] = _point3(np.zeros(3)), _point3(p1 - p0)
+            props["p0"], props["p1"] = _point3(_ORIGIN), _point3(_minus(p1, p0))
             return
         return _move_to_world(node, offset, add=True)
     if kind == "Emitter":
@@ -405,7 +441,7 @@ def _move_node(node: _Node, offset: np.ndarray) -> None:
             if node.has("origin", "Vector"):
                 _move_point(node, "origin", offset)
             else:
-                props["origin"] = _point3(-offset)
+                props["origin"] = _point3(_minus(_ORIGIN, offset))
             return
         return _move_to_world(node, offset, add=name != "batch")
     if kind == "Volume" or (kind == "Integrator" and name == "mip"):
@@ -473,17 +509,16 @@ def make_camera_relative(parsed, *, sensor: int = 0):
     blocked = _blocked(nodes, world, local) if moves else ""
     if blocked:
         moves, reason = False, blocked
-    stated = None if where is None else tuple(float(v) for v in where)
     if not moves:
-        parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, reason)
+        parsed.recentring = Recentring(_ORIGIN, where, reason)
         return parsed
-    offset = np.asarray(where, dtype=np.float32).astype(np.float64)
-    if not offset.any():
-        parsed.recentring = Recentring((0.0, 0.0, 0.0), stated, "the sensor is within float32 rounding of the origin")
+    offset = _float32(where)
+    if not any(offset):
+        parsed.recentring = Recentring(_ORIGIN, where, "the sensor is within float32 rounding of the origin")
         return parsed
     for index in dict.fromkeys(world + volumes):
         _move_node(nodes[index], offset)
-    parsed.recentring = Recentring(tuple(float(v) for v in offset), stated, reason)
+    parsed.recentring = Recentring(offset, where, reason)
     return parsed
 
 

@@ -18,17 +18,20 @@ integrator, and only they say it:
 
 :func:`channel_layout` reads this from a loaded scene into a :class:`ChannelLayout`, whose
 :meth:`ChannelLayout.split` cuts an image into ``colour`` (H, W, 1 or 3, or None), ``alpha``
-(H, W or None) and ``layers`` (name -> (H, W)). ``render``, progressive rendering, ``compare``
-and tiled renders all go through it.
+(H, W or None) and ``layers`` (name -> (H, W)); :meth:`ChannelLayout.kept` names what a file
+of the render holds, in order, and :meth:`ChannelLayout.pick` takes those channels out of a
+Dr.Jit tensor without numpy. ``render``, progressive rendering, ``compare`` and tiled renders all
+go through it.
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["ChannelLayout", "SplitImage", "channel_layout", "layout_from_names", "BASE_NAMES"]
 
@@ -76,15 +79,70 @@ class ChannelLayout:
     def layer_names(self) -> list[str]:
         return [name for name, _ in self.layers]
 
+    def kept(self) -> list[tuple[str, int]]:
+        """The channels a file of the render holds, as (name, index in the render): the colour
+        (``Y`` or ``R G B``) and alpha (``A``) under their standard names, then every layer.
+
+        Examples
+        --------
+        >>> layout_from_names(4, False, ["sample_count"]).kept()
+        [('R', 0), ('G', 1), ('B', 2), ('A', 3), ('sample_count', 4)]
+        """
+        colour = BASE_NAMES[len(self.colour)] if self.colour else ()
+        named = list(zip(colour, self.colour))
+        if self.alpha is not None:
+            named.append(("A", self.alpha))
+        return named + list(self.layers)
+
+    def _check_shape(self, shape: tuple[int, ...]) -> None:
+        if len(shape) != 3 or shape[2] != self.channels:
+            raise ValueError(f"image: the film and the integrator name {self.channels} channels "
+                             f"({', '.join(self.names)}), the render has shape {tuple(shape)}")
+
     def check(self, image: Any) -> np.ndarray:
         """``image`` as float32 numpy (H, W, C); ValueError unless C is :attr:`channels`."""
+        import numpy as np
+
         pixels = np.asarray(image, dtype=np.float32)
         if pixels.ndim == 2:
             pixels = pixels[..., None]
-        if pixels.ndim != 3 or pixels.shape[2] != self.channels:
-            raise ValueError(f"image: the film and the integrator name {self.channels} channels "
-                             f"({', '.join(self.names)}), the render has shape {tuple(pixels.shape)}")
+        self._check_shape(pixels.shape)
         return pixels
+
+    def pick(self, image: Any, indices) -> Any:
+        """Channels ``indices`` of the render ``image`` (H, W, C), in that order, as an (H, W, K)
+        image of the same kind: a Dr.Jit tensor (one gather, no numpy) or a numpy array.
+        ValueError unless C is :attr:`channels`.
+
+        Examples
+        --------
+        >>> import drjit as dr
+        >>> from drjit.llvm import TensorXf
+        >>> layout = layout_from_names(3, False, ["sample_count"])
+        >>> image = TensorXf(dr.arange(dr.llvm.Float, 8), shape=(1, 2, 4))
+        >>> layout.pick(image, [3, 0]).numpy().tolist()
+        [[[3.0, 0.0], [7.0, 4.0]]]
+        """
+        indices = [int(i) for i in indices]
+        shape = tuple(int(n) for n in image.shape)
+        if len(shape) == 2:
+            shape = (*shape, 1)
+        self._check_shape(shape)
+        if not hasattr(image, "array"):                      # numpy (or anything numpy takes)
+            return self.check(image)[..., indices]
+        import drjit as dr
+
+        tensor_type = type(image)
+        flat = image.array
+        if indices == list(range(shape[2])):
+            return image
+        height, width, channels = shape
+        count = len(indices)
+        index_type = dr.uint32_array_t(type(flat))
+        slot = dr.arange(index_type, height * width * count)
+        table = index_type(indices)
+        source = (slot // count) * channels + dr.gather(index_type, table, slot % count)
+        return tensor_type(dr.gather(type(flat), flat, source), shape=(height, width, count))
 
     def split(self, image: Any) -> SplitImage:
         """Cut ``image`` into colour (H, W, 1|3), alpha (H, W) and AOV layers (name -> (H, W)).
@@ -92,6 +150,7 @@ class ChannelLayout:
         Examples
         --------
         >>> layout = layout_from_names(3, False, ["sample_count"])
+        >>> import numpy as np
         >>> parts = layout.split(np.arange(8, dtype=np.float32).reshape(1, 2, 4))
         >>> parts.colour.shape, parts.alpha, parts.layers["sample_count"].tolist()
         ((1, 2, 3), None, [[3.0, 7.0]])
@@ -108,6 +167,8 @@ class ChannelLayout:
             return None
         if parts.alpha is None:
             return parts.colour
+        import numpy as np
+
         return np.concatenate([parts.colour, parts.alpha[..., None]], axis=2)
 
 

@@ -24,6 +24,7 @@ Function            Accepts
 ``choice``          one of a fixed set of values (of the same type)
 ``uint32``          int in 0..2^32-1 (Mitsuba's and Dr.Jit's 32-bit counters)
 ``seed``            a :func:`uint32` named ``seed``
+``exr_attribute``   an EXR header attribute: a name not OpenEXR's own, an int, float or str
 ==================  ===================================================================
 
 Examples
@@ -49,14 +50,16 @@ from __future__ import annotations
 
 import math
 import numbers
+import struct
+import sys
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:  # numpy is imported by the checks that use it: a command's -h loads none
+if TYPE_CHECKING:  # numpy is imported only by the checks of arrays: a command's -h or a plain render loads none
     import numpy as np
 
 __all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
-           "choice", "uint32", "seed", "available_memory", "memory"]
+           "choice", "uint32", "seed", "available_memory", "memory", "EXR_RESERVED", "EXR_INT_RANGE", "exr_attribute"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = math.ldexp(2.0 - 2.0**-23, 127)
@@ -71,12 +74,28 @@ def _got(value: Any) -> str:
     return f"{type(value).__name__} {text if len(text) <= 60 else text[:57] + '...'}"
 
 
+class _Never:
+    """A type nothing is an instance of."""
+
+
+def _numpy_type(name: str) -> type:
+    """numpy's type ``name`` (``bool_``, ``ndarray``) when numpy is loaded, else :class:`_Never`: a
+    value cannot be a numpy object unless numpy was imported, so the checks need not import it."""
+    numpy = sys.modules.get("numpy")
+    return getattr(numpy, name) if numpy is not None else _Never
+
+
+def _is_bool(value: Any) -> bool:
+    """A Python or numpy bool."""
+    return isinstance(value, (bool, _numpy_type("bool_")))
+
+
 def _as_float32(value: float) -> float:
     """``value`` rounded to float32 (inf beyond its range), as a Python float."""
-    import numpy as np
-
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
+    try:
+        return struct.unpack("<f", struct.pack("<f", float(value)))[0]
+    except OverflowError:  # rounds beyond float32's largest (or an int beyond float64)
+        return math.inf if value > 0 else -math.inf
 
 
 def real(value: Any, name: str, *, low: float | None = None, high: float | None = None,
@@ -120,9 +139,7 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
     ...
     ValueError: level: expected a finite number, got nan
     """
-    import numpy as np
-
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+    if _is_bool(value) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name}: expected a number, got {_got(value)}")
     try:
         number = float(value)
@@ -219,9 +236,7 @@ def integer(value: Any, name: str, *, low: int | None = None, high: int | None =
     ...
     TypeError: levels: expected an integer, got float 2.0
     """
-    import numpy as np
-
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+    if _is_bool(value) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name}: expected an integer, got {_got(value)}")
     number = int(value)
     if (low is not None and number < low) or (high is not None and number > high):
@@ -245,9 +260,7 @@ def integers(value: Any, name: str, count: int | None = None, *, low: int | None
     ...
     TypeError: size: expected a sequence of integers, got str '64'
     """
-    import numpy as np
-
-    if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
+    if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, _numpy_type("ndarray"))):
         raise TypeError(f"{name}: expected a sequence of integers, got {_got(value)}")
     if count is not None and len(value) != count:
         raise ValueError(f"{name}: expected {count} integers, got {len(value)}: {tuple(value)!r}")
@@ -267,9 +280,7 @@ def boolean(value: Any, name: str) -> bool:
     ...
     TypeError: clamp: expected True or False, got int 1
     """
-    import numpy as np
-
-    if not isinstance(value, (bool, np.bool_)):
+    if not _is_bool(value):
         raise TypeError(f"{name}: expected True or False, got {_got(value)}")
     return bool(value)
 
@@ -294,9 +305,7 @@ def choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
     expected = ", ".join(map(repr, options))
 
     def kind(x: Any) -> str:
-        import numpy as np
-
-        return "bool" if isinstance(x, (bool, np.bool_)) else "str" if isinstance(x, str) else \
+        return "bool" if _is_bool(x) else "str" if isinstance(x, str) else \
             "number" if isinstance(x, numbers.Number) else type(x).__name__
 
     if kind(value) not in {kind(option) for option in options}:
@@ -372,3 +381,48 @@ def memory(needed: int, what: str) -> None:
     if needed > free:
         raise ValueError(f"{what} needs {needed:.2g} bytes ({needed / 2**30:.1f} GiB), more than the "
                          f"{free / 2**30:.1f} GiB of memory available")
+
+
+#: EXR header attributes that OpenEXR owns: metadata may not use these names.
+EXR_RESERVED = frozenset({
+    "channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
+    "screenWindowCenter", "screenWindowWidth", "type", "tiles", "name", "version", "chunkCount",
+})
+
+#: The range of an EXR ``int`` attribute (32 bits).
+EXR_INT_RANGE = (-2**31, 2**31 - 1)
+
+
+def exr_attribute(key: Any, value: Any) -> int | float | str:
+    """The metadata item ``key: value`` as an EXR header attribute holds it.
+
+    ``key``: a non-empty str, not one of :data:`EXR_RESERVED`. ``value``: str; int (numpy integers
+    too) within :data:`EXR_INT_RANGE`, an integer beyond it becomes its decimal text (an EXR ``int``
+    has 32 bits: the text keeps a seed of 2^32 - 1 exact); bool (numpy bool too) becomes 0 or 1;
+    a real (numpy floats too) a float.
+
+    Examples
+    --------
+    >>> exr_attribute("spp", True), exr_attribute("seed", 2**32 - 1), exr_attribute("t", 0.5)
+    (1, '4294967295', 0.5)
+    >>> exr_attribute("channels", 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: metadata: 'channels' is a reserved EXR attribute name
+    """
+    import numbers
+
+    if not isinstance(key, str) or not key:
+        raise TypeError(f"metadata: keys must be non-empty str, got {key!r}")
+    if key in EXR_RESERVED:
+        raise ValueError(f"metadata: {key!r} is a reserved EXR attribute name")
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        return int(value)
+    if isinstance(value, numbers.Integral):
+        value = int(value)
+        return value if EXR_INT_RANGE[0] <= value <= EXR_INT_RANGE[1] else str(value)
+    if isinstance(value, numbers.Real):
+        return float(value)
+    raise TypeError(f"metadata[{key!r}]: expected int, float or str, got {type(value).__name__}")

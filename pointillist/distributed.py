@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from pointillist import checks
+from pointillist.digests import json_default
 from pointillist.errors import UsageError
 
 __all__ = [
@@ -58,8 +59,6 @@ __all__ = [
     "start_cluster",
     "connect",
     "open_client",
-    "file_digest",
-    "json_key",
     "task_key",
     "ResultCache",
     "run_tasks",
@@ -227,19 +226,6 @@ def open_client(workers: int | None = None, scheduler: str | None = None, *,
 
 
 # --------------------------------------------------------------------------- keys, cache and task runner
-_DIGESTS: dict[tuple[str, int, int], str] = {}
-
-def file_digest(path: str | os.PathLike) -> str:
-    """SHA-256 of a file's bytes (memoised on path, size and mtime); '' if it does not exist."""
-    try:
-        stat = os.stat(path)
-    except OSError:
-        return ""
-    key = (str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns)
-    if key not in _DIGESTS:
-        _DIGESTS[key] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    return _DIGESTS[key]
-
 def task_key(function: Callable, task: Any) -> str:
     """A stable key for ``function(task)``: SHA-256 of the function's name and the task's token.
 
@@ -257,21 +243,6 @@ def task_key(function: Callable, task: Any) -> str:
         raise TypeError(f"task: cannot make a cache key from {type(task).__name__} ({error}); "
                         "give it a cache_token() method or pass keys=") from None
     return hashlib.sha256(text.encode()).hexdigest()
-
-def json_default(value):
-    if isinstance(value, (tuple, set, frozenset)):
-        return list(value)
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
-
-
-def json_key(value: Any) -> str:
-    """SHA-256 (hex) of ``value`` as canonical JSON (sorted keys; tuples as lists, paths as strings)."""
-    return hashlib.sha256(json.dumps(value, sort_keys=True, default=json_default).encode()).hexdigest()
-
 
 #: Classes a :class:`ResultCache` file may hold (``module:name`` -> class; :func:`register_result_type`).
 _RESULT_TYPES: dict[str, type] = {}

@@ -37,7 +37,8 @@ import numpy as np
 
 from pointillist import checks
 from pointillist import signals
-from pointillist.distributed import DEFAULT_RETRIES, json_key, open_client, run_tasks, setup_process
+from pointillist.digests import json_key
+from pointillist.distributed import DEFAULT_RETRIES, open_client, run_tasks, setup_process
 from pointillist.errors import UsageError
 
 __all__ = ["NAMED_VIEWS", "PERSPECTIVE_MIN_FOV", "check_perspective", "view_axes", "view_frame", "patient_view",

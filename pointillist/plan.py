@@ -32,7 +32,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pointillist.distributed import file_digest
+from pointillist.digests import file_digest
 from pointillist.errors import UsageError
 from pointillist.files import check_output_path, existing_ancestor, unwritable
 from pointillist.parsed_state import read_properties, resolving_from

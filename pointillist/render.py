@@ -166,14 +166,21 @@ def _warn_nonfinite(image, layout) -> None:
     non-finite values; they are written as they are), as a progressive render warns."""
     import warnings
 
-    import numpy as np
-
-    colour = layout.split(np.asarray(image)).colour
-    if colour is None:
+    if not layout.colour:
         return
-    bad = int(np.count_nonzero(~np.isfinite(colour).all(axis=-1)))  # colour is (H, W, 1 or 3)
+    colour = layout.pick(image, layout.colour)  # (H, W, 1 or 3), a Dr.Jit tensor or numpy
+    pixels = int(colour.shape[0]) * int(colour.shape[1])
+    if hasattr(colour, "array"):  # per pixel: how many of its channels are NaN or inf, then how many pixels have one
+        import drjit as dr
+
+        values = colour.array
+        flags = dr.select(dr.isfinite(values), 0, 1) + dr.zeros(dr.uint32_array_t(type(values)), dr.width(values))
+        bad = int(dr.count(dr.block_sum(flags, int(colour.shape[2])) > 0)[0])
+    else:
+        import numpy as np
+
+        bad = int(np.count_nonzero(~np.isfinite(colour).all(axis=-1)))
     if bad:
-        pixels = colour.shape[0] * colour.shape[1]
         warnings.warn(f"{bad} of {pixels} pixels are NaN or inf (the scene or its integrator gives non-finite "
                       "values); they stay so in the image", stacklevel=3)
 

@@ -1,7 +1,11 @@
 """Writing a render: the EXR (extra film channels as layers, metadata in the header), the sRGB
 PNG preview, and the heat map of a per-pixel sample count (the ``adaptive`` integrator's AOV).
 
-Every file is written atomically and never over an input (:mod:`pointillist.files`).
+A render's EXR is written by Mitsuba's own writer (``mitsuba.Bitmap``, as ``Bitmap.write``
+writes a render: float32, lossless PIZ compression, a ``generatedBy`` attribute), so that a
+plain render never imports numpy or the OpenEXR package (a tenth of a second of every start).
+:func:`pointillist.imaging.io.read_exr` reads it as it reads the imaging module's EXRs. Every
+file is written atomically and never over an input (:mod:`pointillist.files`).
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from pathlib import Path
 from pointillist.errors import UsageError
 
 __all__ = ["SAMPLE_COUNT_LAYER", "output_path", "render_outputs", "check_preview", "write_render",
-           "write_sample_heatmap"]
+           "write_render_exr", "write_sample_heatmap"]
 
 
 #: The EXR layer of a per-pixel sample count (written by the ``adaptive`` integrator).
@@ -60,24 +64,70 @@ def write_render(out: Path, image, scene, scene_path: str, info: dict, timing, *
     scene file is always one).
     """
     from pointillist.channels import channel_layout
-    from pointillist.imaging.io import write_exr, write_png
 
     layout = layout or channel_layout(scene)
-    parts = layout.split(image)
-    colour = layout.with_colour_alpha(image)
-    layers = dict(parts.layers)
-    layers.update(extra_layers or {})
     metadata = dict(info, scene=str(scene_path), render_seconds=timing.total,
                     compile_seconds=timing.compile, execute_seconds=timing.execute,
                     trace_seconds=timing.trace)
     protected = [scene_path, *inputs]
-    write_exr(out, colour, metadata, layers=layers, inputs=protected)
+    write_render_exr(out, image, layout, metadata, extra_layers=extra_layers, inputs=protected)
     if png:
+        from pointillist.imaging.io import write_png
+
         check_preview(layout, png)
+        parts = layout.split(image)
         write_png(out.with_suffix(".png"), parts.colour, inputs=protected)
-        if SAMPLE_COUNT_LAYER in layers:
-            write_sample_heatmap(out.with_suffix(f".{SAMPLE_COUNT_LAYER}.png"), layers[SAMPLE_COUNT_LAYER],
+        if SAMPLE_COUNT_LAYER in parts.layers:
+            write_sample_heatmap(out.with_suffix(f".{SAMPLE_COUNT_LAYER}.png"), parts.layers[SAMPLE_COUNT_LAYER],
                                  inputs=protected)
+
+
+def write_render_exr(out: Path, image, layout, metadata: dict, *, extra_layers: dict | None = None,
+                     inputs=()) -> None:
+    """Write a render's EXR through Mitsuba's writer: the channels of ``layout.kept()`` (colour,
+    alpha, AOV layers), then ``extra_layers`` ((H, W) each, by name), with ``metadata`` (see
+    :func:`pointillist.checks.exr_attribute`) in the header. A Dr.Jit ``image`` without extra layers goes to the
+    file without numpy.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from pointillist.checks import exr_attribute
+    from pointillist.files import atomic_write, check_output_path
+    from pointillist.scene import thread_count
+
+    out = check_output_path(out, inputs)
+    kept = layout.kept()
+    names = [name for name, _ in kept]
+    if not names and not extra_layers:
+        raise ValueError("image: the render has no channels to write")
+    pixels = layout.pick(image, [index for _, index in kept])
+    if extra_layers:
+        import numpy as np
+
+        height, width = pixels.shape[:2]
+        extra = []
+        for name, layer in extra_layers.items():
+            layer = np.asarray(layer, dtype=np.float32)
+            if layer.shape != (height, width) or name in names:
+                raise ValueError(f"extra_layers[{name!r}]: expected a new (H, W) = ({height}, {width}) layer, "
+                                 f"got shape {layer.shape}")
+            names.append(name)
+            extra.append(layer[..., None])
+        pixels = np.ascontiguousarray(np.concatenate([np.asarray(pixels, dtype=np.float32), *extra], axis=2))
+    bitmap = mi.Bitmap(pixels, mi.Bitmap.PixelFormat.MultiChannel, names)
+    header = bitmap.metadata()
+    for key, value in metadata.items():
+        header[key] = exr_attribute(key, value)
+
+    def write(tmp: str) -> None:
+        stream = mi.MemoryStream()  # through Python's file: Mitsuba takes a path only as UTF-8 text
+        with thread_count(max(dr.thread_count(), 2)):  # on a pool of one thread Mitsuba's EXR writer never returns
+            bitmap.write(stream, mi.Bitmap.FileFormat.OpenEXR)
+        with open(tmp, "wb") as file:
+            file.write(stream.raw_buffer())
+
+    atomic_write(out, write)
 
 
 

@@ -349,11 +349,12 @@ def thread_count(threads: int | None):
     count before is restored after. On one thread the film's atomic additions of samples that land
     on the same pixel (any filter wider than a pixel, the particle tracer) come in one fixed order,
     so a render is the same to the last bit on every run, as Mitsuba's own renders on one thread
-    are; on several the order, and so the last bit, varies from run to run. Used around rendering
-    only: Mitsuba's scene loading waits on its own parallel tasks and must keep its threads."""
+    are; on several the order, and so the last bit, varies from run to run. Used around rendering,
+    and around Mitsuba's EXR writer, which never returns on a pool of one thread (Mitsuba 3.9.1): never
+    around loading, as Mitsuba's scene loading waits on its own parallel tasks and must keep its threads."""
     import drjit as dr
 
-    if threads is None:
+    if threads is None or int(threads) == dr.thread_count():
         yield
         return
     # Resizing Dr.Jit's thread pool while kernels it launched are still running crashes (or

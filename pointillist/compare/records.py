@@ -23,7 +23,7 @@ import numpy as np
 
 from pointillist import signals
 from pointillist.compare.methods import sweep_parameter
-from pointillist.distributed import json_key
+from pointillist.digests import json_key
 
 __all__ = ["Task", "RenderRecord", "task_paths", "load_record", "record_json", "write_json", "SCORES_VERSION",
            "scores_key", "image_digest", "maps_path", "MAP_NAMES", "load_scores", "save_scores", "SceneFacts",

@@ -26,7 +26,8 @@ from pointillist import signals
 from pointillist.compare.methods import METHODS, load_configured_scene, scene_key
 from pointillist.compare.records import (MAP_NAMES, RenderRecord, Task, image_digest, load_record, load_scores,
                                          maps_path, record_json, save_scores, scores_key, task_paths, write_json)
-from pointillist.distributed import DEFAULT_RETRIES, json_key, run_tasks, setup_process
+from pointillist.digests import json_key
+from pointillist.distributed import DEFAULT_RETRIES, run_tasks, setup_process
 from pointillist.errors import UsageError
 
 __all__ = ["REFERENCE_SAMPLER", "REFERENCE_SEED", "render_one", "render_reference", "run_sweep", "compare_task",
