@@ -34,7 +34,7 @@ system:
 		echo "pointillist needs Python >= 3.11 (found: $$($(PYTHON) --version 2>&1))" >&2; exit 2; fi
 	@need=""; \
 	$(PYTHON) -c 'import venv, ensurepip' 2>/dev/null || need="$$need python3-venv"; \
-	$(PYTHON) pointillist/llvm.py --check >/dev/null 2>&1 || need="$$need libllvm19"; \
+	$(PYTHON) pointillist/core/llvm.py --check >/dev/null 2>&1 || need="$$need libllvm19"; \
 	if [ -n "$$need" ]; then \
 		echo "installing system packages:$$need"; \
 		$(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$need >/dev/null; \

@@ -1,6 +1,6 @@
 """Adaptive super-sampling against uniform ``jitter`` on scenes/edges.xml, in one run.
 
-Goals (issue 9): adaptive reaches the RMSE of uniform 16 spp ``jitter`` in at most 50%
+Goals: adaptive reaches the RMSE of uniform 16 spp ``jitter`` in at most 50%
 of its time, and the scheduling overhead (render time not spent tracing rays) is below
 20% of the adaptive render.
 
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     _plot(suites, args.plot)
     reproduce = " ".join(["flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/adaptive.py",
                           *(argv if argv is not None else sys.argv[1:])]).replace(" --write", "")
-    lines = ["## Adaptive super-sampling (issue 9, speed)", "",
+    lines = ["## Adaptive super-sampling", "",
              f"Machine: {platform.machine()}, Python {platform.python_version()}, Mitsuba {mi.__version__}, "
              f"Dr.Jit {dr.__version__}; {load_note(load_before, load())}. Scene {Path(args.scene).name}, reference "
              f"{REFERENCE_SAMPLER} {args.reference_spp} spp, medians of {args.repeats} interleaved rounds. "

@@ -7,10 +7,10 @@ and imports included, as a user sees it), with the metrics' time (every `imaging
 call: the report page's maps go through it too) summed inside. Four configurations, run interleaved
 (fresh, then rerun in the same folder, for each in turn, every repeat):
 
-- `flip-evaluator, no stored scores`: what compare did before issue 32 (FLIP by flip-evaluator; every run
+- `flip-evaluator, no stored scores`: what compare did before the speed round (FLIP by flip-evaluator; every run
   scores every render and writes every output);
 - `FLIP on Dr.Jit, no stored scores`: the Dr.Jit FLIP alone;
-- `FLIP on Dr.Jit, stored scores, outputs always written`: issue 32 part A (a rerun reuses each render's
+- `FLIP on Dr.Jit, stored scores, outputs always written`: the speed round's first part (a rerun reuses each render's
   stored scores and maps, but builds the scene and writes the report's files and page again);
 - `FLIP on Dr.Jit, stored scores and outputs` (compare as it is): a rerun also leaves the report's files and
   page alone when what they show is unchanged (`pointillist.compare.outputs`) and takes the scene's size and
@@ -45,7 +45,7 @@ ARGS = ["compare", str(ROOT / "scenes" / "edges.xml"), "--samplers", "grid,jitte
 #: name -> (FLIP backend, scores kept, outputs and scene facts kept)
 CONFIGS = {"flip-evaluator, no stored scores": ("flip-evaluator", False, False),
            "FLIP on Dr.Jit, no stored scores": ("drjit", False, False),
-           "FLIP on Dr.Jit, stored scores, outputs always written (issue 32 A)": ("drjit", True, False),
+           "FLIP on Dr.Jit, stored scores, outputs always written (A)": ("drjit", True, False),
            "FLIP on Dr.Jit, stored scores and outputs (now)": ("drjit", True, True)}
 NOW = "FLIP on Dr.Jit, stored scores and outputs (now)"
 
@@ -159,8 +159,8 @@ def main() -> int:
     lines = [
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; Python "
         f"{platform.python_version()}, Mitsuba {mitsuba.__version__}, Dr.Jit {dr.__version__}.",
-        f"Load average {load_before:.1f} before and {load_after:.1f} after on {os.cpu_count()} cores (other agents' "
-        "jobs shared the machine): loaded-machine figures, to rerun on a quiet machine; the configurations ran "
+        f"Load average {load_before:.1f} before and {load_after:.1f} after on {os.cpu_count()} cores (other "
+        "processes were running): loaded-machine figures, to rerun on a quiet machine; the configurations ran "
         "interleaved, so the ratios compare like with like.",
         f"Sweep: `pointillist {' '.join(_shown(a) for a in ARGS)}"
         f" --out DIR` (12 renders 256x256, 256-spp reference, report page included); medians of {args.repeats} "
@@ -197,22 +197,22 @@ def main() -> int:
         sys.path.insert(0, str(ROOT / "benchmarks"))
         from _results import write_block
 
-        write_block("compare_scores", "## `pointillist compare`: scoring and reruns (issue 32)\n\n" + table
+        write_block("compare_scores", "## `pointillist compare`: scoring and reruns\n\n" + table
                     + "\n\n" + NOTES)
     return 0
 
 
 #: Written under the tables by --write: this run's reading (2026-12-02, load average 4.7-6.0 on 2 cores).
-NOTES = """Issue 32 goals, this run (loaded machine; the issue's own figures were quiet: a 10.8 s fresh sweep, 57 % of
-it scoring, a rerun of 7.8 s = 0.73x; the last run of this benchmark before reruns kept their outputs, at load
-5-13: 0.45x):
+NOTES = """The speed round's goals, this run (loaded machine; the goals' own figures were quiet: a 10.8 s
+fresh sweep, 57 % of it scoring, a rerun of 7.8 s = 0.73x; the last run of this benchmark before reruns kept
+their outputs, at load 5-13: 0.45x):
 
 - Scoring at most 25 % of a fresh sweep: **met**, 12-16 % with FLIP on Dr.Jit (1.5-2.1 s for the 12 renders
   and the page's maps), against 78 % with flip-evaluator in the same run (30.2 s: its two OpenMP threads wait
   for each other at every barrier on an oversubscribed machine, so its loaded share is above the quiet 57 %).
 - A rerun with every render cached at most 0.15x the fresh sweep: **met**, 0.139x (1.89 s against 13.59 s;
   each of the five repeats 0.128-0.145x; an earlier run of 3 repeats at load 5.0-5.5: 0.12x, 0.70 s). With
-  the outputs always written (issue 32 part A) the same rerun takes 6.98 s (0.51x): the three plots and
+  the outputs always written (the speed round's first part) the same rerun takes 6.98 s (0.51x): the three plots and
   results.md 4.17 s, report.html 0.68 s, building the scene for its size 0.21 s. Now the outputs' check
   (the key of what they are made from, the files' SHA-256) takes 0.03 s and the scene's facts are read from
   renders/<key>/scene.json. What is left: start-up and imports 0.77 s, reading the 12 records and stored

@@ -1,4 +1,4 @@
-"""Benchmark: the progressive error estimate on hard scenes, candidates side by side (issue 27).
+"""Benchmark: the progressive error estimate on hard scenes, candidates side by side.
 
 Measures, in one run, against long references whose own noise is measured from two halves and
 subtracted (``benchmarks/_references.py``, cached in ``benchmarks/.cache/``):
@@ -9,7 +9,8 @@ subtracted (``benchmarks/_references.py``, cached in ``benchmarks/.cache/``):
    true relMSE / estimate (goal 0.5-2; above 1: the estimate is too low). Candidates (``v``: a
    variance of the pixel mean; ``m``: the mean; ``eps`` = 0.01):
 
-   - ``previous``: the estimate before issue 27, Welford's ``v / (max(m^2 - v, m^2 / 4) + eps)``;
+   - ``previous``: the estimate before its rework for hard scenes, Welford's
+     ``v / (max(m^2 - v, m^2 / 4) + eps)``;
    - ``dual buffer``: ``v`` from two half buffers, ``(m_A - m_B)^2 W_A W_B / W^2`` (Rousselle, Knaus
      and Zwicker 2012; Cycles' adaptive sampling compares the image with a half buffer, the same
      information), with the previous denominator;
@@ -338,10 +339,10 @@ READING = [
 
 def report(along_rows, stop_rows, cost_rows, args, load_before, load_after, mi, dr) -> str:
     names = list(along_rows[0]["est"]) if along_rows else []
-    lines = ["## The progressive error estimate on hard scenes (issue 27, `benchmarks/estimator.py`)", "",
+    lines = ["## The progressive error estimate on hard scenes", "",
              f"Machine: {os.cpu_count()} cores ({platform.machine()}), Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}. Load average (1 min) {load_before:.1f} before, "
-             f"{load_after:.1f} after (shared with other agents' work: the seconds and the spp a time budget reaches "
+             f"{load_after:.1f} after (other processes running: the seconds and the spp a time budget reaches "
              "depend on it, the ratios do not). Command: `flock /tmp/pointillist-bench.lock .venv/bin/python "
              "benchmarks/estimator.py --write`. References: two independent halves of 2x32768 spp (hard scenes) or "
              "2x16384 spp, their variance `(A - B)^2 / 4` subtracted from the squared error: true relMSE = "

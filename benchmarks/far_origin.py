@@ -1,8 +1,8 @@
-"""Benchmark: scenes far from the origin, loaded as written and camera-relative (issue 30).
+"""Benchmark: scenes far from the origin, loaded as written and camera-relative.
 
 Measures, in one run:
 
-1. Pixels: issue 30's scene (tests/far_scenes.py: Phong, mirror and glass spheres on a diffuse
+1. Pixels: the far-origin scene (tests/far_scenes.py: Phong, mirror and glass spheres on a diffuse
    floor, one point light, 80x80, 4 spp, seed 1) written into the XML 1e3 .. 1e7 from the origin
    along x, y, z and (1, 1, 1), rendered with ``whitted``, Mitsuba's ``path`` (max_depth 6) and
    ``direct``, loaded as written (``instantiate_scene(parse_scene(...))``, "before") and camera-
@@ -136,7 +136,7 @@ STORAGE = {"to_world": "near the origin, offset in `to_world`", "ply": "PLY in w
 
 
 def mesh_scene(mi, folder: Path, offset: float, integrator: str, storage: str) -> Path:
-    """Issue 30's scene with its floor and spheres as meshes, offset along (1, 1, 1) as ``storage`` says."""
+    """The far-origin scene with its floor and spheres as meshes, offset along (1, 1, 1) as ``storage`` says."""
     from tests.far_scenes import FLOOR_BSDF, FLOOR_HALF_SIZE, SPHERES, far_scene_xml
 
     shift = np.full(3, float(offset))
@@ -258,7 +258,7 @@ def load_times(folder: Path, rounds: int, first_rounds: int, bar):
         for _ in range(rounds):
             copy = ParsedScene(parsed.path, parsed.params, mi.parser.ParserState(parsed.state), parsed.config)
             step.append(seconds(make_camera_relative, copy))
-        rows.append({"scene": scene.name if scene.parent == ROOT / "scenes" else "issue 30's scene at 1e6 (path)",
+        rows.append({"scene": scene.name if scene.parent == ROOT / "scenes" else "the far-origin scene at 1e6 (path)",
                      "first": summary(first), "repeat": summary(times), "step": statistics.median(step),
                      "moved": copy.recentring.moved})
         bar.update(1)
@@ -290,7 +290,7 @@ def picture(images, path: Path):
             ax.set_title(title, fontsize=9)
             ax.set_axis_off()
     fig.tight_layout()
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     save_figure(fig, path)
 
@@ -315,14 +315,14 @@ def report(args, pixels, meshes, ops, loads, seconds, load_avg) -> str:
     import drjit as dr
     import mitsuba as mi
 
-    out = ["## Far from the origin: camera-relative loading (issue 30, `benchmarks/far_origin.py`)", "",
-           f"Machine: {platform.machine()}, {os.cpu_count()} cores shared with other agents' jobs (load average "
+    out = ["## Far from the origin: camera-relative loading", "",
+           f"Machine: {platform.machine()}, {os.cpu_count()} cores with other processes running (load average "
            f"{load_avg[0]:.1f} before, {load_avg[1]:.1f} after), {platform.platform()}; Python "
            f"{platform.python_version()}, Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}. Run time {seconds:.0f} s. "
            f"Reproduce: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/far_origin.py --rounds "
            f"{args.rounds} --first-rounds {args.first_rounds}`.", "",
            "Pixels more than 1 % off (relative; absolute floor 1e-3 of the image mean) against the same integrator "
-           "on the scene at the origin, same seed: issue 30's scene (tests/far_scenes.py, 80x80, 4 spp, seed 1) "
+           "on the scene at the origin, same seed: the far-origin scene (tests/far_scenes.py, 80x80, 4 spp, seed 1) "
            "with every position written into the XML moved by the offset along the axis; *before*: loaded as "
            "written, *after*: camera-relative (`load_scene`, what `pointillist render` does). Goal: at most 0.5 % at "
            "1e4, 1e5, 1e6 for whitted and `path`.", ""]
@@ -338,7 +338,7 @@ def report(args, pixels, meshes, ops, loads, seconds, load_avg) -> str:
             "them into float32 before any transform). Against the same meshes at the origin:", ""]
     out += _offset_table(meshes, [(i, label, (i, storage)) for i in INTEGRATORS for storage, label in STORAGE.items()],
                          ("integrator", "vertices"))
-    out += ["", "Render cost: the main kernel's operation count, issue 30's scene at 1e5, as written / camera-"
+    out += ["", "Render cost: the main kernel's operation count, the far-origin scene at 1e5, as written / camera-"
             "relative (the same kernels; only the data they read changes): " + ", ".join(
                 f"{k} {a} / {b}" for k, (a, b) in ops.items()) + ".", "",
             "Load time: `load_scene` against parse + instantiate, interleaved: the first load in a fresh process "

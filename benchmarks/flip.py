@@ -180,7 +180,7 @@ def plot(rows, path: Path) -> None:
     ax.set_title("FLIP: ours vs flip-evaluator (ratio = ours / flip-evaluator)", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     save_figure(fig, path)
 
@@ -218,7 +218,7 @@ def main() -> int:
         f"flip-evaluator {version('flip-evaluator')} (C++ with OpenMP: 1 and 2 threads timed, the faster shown), "
         f"numpy {np.__version__}.",
         f"Load average {load_before:.1f} before and {load_after:.1f} after the timed rounds on {os.cpu_count()} cores "
-        "(other agents' jobs shared the machine): loaded-machine figures; rerun on a quiet machine for absolute times. "
+        "(other processes were running): loaded-machine figures; rerun on a quiet machine for absolute times. "
         "The ratios hold better than the times: both sides ran in every round.",
         f"{args.repeats} interleaved rounds after a warm-up; ours = `pointillist.imaging.flip.flip` (the map returned "
         "evaluated, as `imaging.metrics` uses it); peer = `flip_evaluator.evaluate(reference, test, mode, "

@@ -4,9 +4,9 @@ Run (the machine is shared; always under the lock):
 
     flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/imaging_dither.py [--size 2048] [--repeats 21]
 
-Goals (issue 7): Floyd-Steinberg at most 1.0x Pillow's ``Image.convert('1')``; ordered / Bayer /
+Goals: Floyd-Steinberg at most 1.0x Pillow's ``Image.convert('1')``; ordered / Bayer /
 blue-noise at most 0.5x OpenCV's ``cv2.compare`` against a pre-tiled threshold map (built outside
-the timed region). Issue 23 (8-bit in, 8-bit out: uint8 input gives uint8 output): Floyd-Steinberg
+the timed region). The 8-bit pipelines (8-bit in, 8-bit out: uint8 input gives uint8 output): Floyd-Steinberg
 of uint8 at most 0.6x Pillow; ordered / Bayer / blue noise of uint8 at most 1.5x ``cv2.compare``
 against a pre-tiled uint8 map. Every other kernel is reported.
 
@@ -134,7 +134,7 @@ def plot(results: list[dict], path: Path, size: int) -> None:
     plt.close(fig)
 
 
-NOTES = """Floyd-Steinberg (issue 32): a grey image whose width is a whole number of 8-column blocks, scanned left to
+NOTES = """Floyd-Steinberg: a grey image whose width is a whole number of 8-column blocks, scanned left to
 right, is diffused by the blocked schedule of `imaging/wavefront.py`: one SIMD packet of 16 rows per band, each
 loop iteration diffusing 8 columns of every row with the steps unrolled; the block's inputs (8-bit input read as
 bytes), the next 8 errors of the row above and the block's 8 errors and 8 output levels move as packet gathers and
@@ -148,7 +148,7 @@ subtract), 16 rows at a time; sharing bands between the two cores needs a per-ro
 packets, which Dr.Jit's lockstep packets cannot express (a hand-written kernel). Serpentine scans and colour
 images keep the one-column schedule.
 
-Ordered dithering (issues 7 and 23): uint8 input is compared with a cached pre-tiled byte map (three contiguous
+Ordered dithering: uint8 input is compared with a cached pre-tiled byte map (three contiguous
 byte streams, as `cv2.compare`); the floor rows are a bare Dr.Jit copy. Sub-millisecond kernels on Dr.Jit's two
 worker threads lose to preemption on a loaded machine, where single-threaded OpenCV on the calling thread does
 not: read the minima there."""
@@ -207,7 +207,7 @@ def main() -> int:
     if args.only in ("all", "diffusion"):
         rows.append(("floyd_steinberg (float32 tensor)", ours(d.floyd_steinberg, tensor), pillow, None, None))
         rows.append(("floyd_steinberg (uint8 numpy)", ours(d.floyd_steinberg, u8), pillow, None, None))
-        # the same diffusion by the one-column schedule (issue 32's blocked schedule off): same bits
+        # the same diffusion by the one-column schedule (the speed round's blocked schedule off): same bits
         from drjit.llvm import UInt8 as Bytes
 
         from pointillist.imaging.dither._shared import _quantiser
@@ -345,9 +345,10 @@ def main() -> int:
              f"rerun on a quiet machine); Python {platform.python_version()}, Dr.Jit {drjit.__version__}, "
              f"Pillow {PIL.__version__}, OpenCV {cv2.__version__}, numpy {np.__version__}; Dr.Jit threads "
              f"{dr.thread_count()}, packet width {packet_width()}; median (and minimum) of {repeats} interleaved "
-             "repeats. Input: 8-bit gradient + noise. Goals: issue 32, Floyd-Steinberg of uint8 at most 0.6x "
-             "Pillow's `convert('1')`; issue 23, ordered / Bayer / blue noise of uint8 at most 1.5x `cv2.compare` "
-             "against a pre-tiled uint8 map; issue 7, float32 ordered at most 0.5x `cv2.compare` f32.",
+             "repeats. Input: 8-bit gradient + noise. Goals of the speed round: Floyd-Steinberg of uint8 at most 0.6x "
+             "Pillow's `convert('1')`; of the 8-bit pipelines: ordered / Bayer / blue noise of uint8 at most 1.5x "
+             "`cv2.compare` against a pre-tiled uint8 map; of the dithering speed goals: float32 ordered at most "
+             "0.5x `cv2.compare` f32.",
              "", f"| {size}x{size} | ours median (min) ms | our kernel (ms) | launches | peer (faster setting) "
              f"| peer median (min) ms | ours / peer, medians | (minima) | MB moved ours / peer |",
              "|---|---:|---:|---:|---|---:|---:|---:|---:|"]

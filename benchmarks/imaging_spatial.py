@@ -210,7 +210,7 @@ def main():
 
     cold = first_calls_subprocess(n, cold=True)
     warm = first_calls_subprocess(n, cold=False)
-    lines = ["## imaging_spatial: correlation, edges, median, resize (issue 6)", ""]
+    lines = ["## imaging_spatial: correlation, edges, median, resize", ""]
     lines.append(f"Machine: {platform.machine()}, {os.cpu_count()} cores, {platform.platform()}; Python "
           f"{platform.python_version()}, Dr.Jit {dr.__version__}, LLVM {'.'.join(map(str, dr.detail.llvm_version()))}, "
           f"OpenCV {cv2.__version__}, scipy {scipy.__version__}, scikit-image {skimage.__version__}; image {n}x{n} "

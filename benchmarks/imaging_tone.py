@@ -12,7 +12,7 @@ and their summed execution time, and checks that a repeated call compiles
 nothing. First-call JIT cost is measured apart in fresh subprocesses, with the
 kernel cache (~/.drjit) cold (HOME pointed at an empty folder) and warm.
 
-8-bit in, 8-bit out (issue 23): uint8 input gives uint8 output on both sides, so the uint8
+8-bit in, 8-bit out: uint8 input gives uint8 output on both sides, so the uint8
 rows compare byte for byte (OpenCV's tables are prepared outside the timing; ours are cached by
 parameters after the first call, the JIT column shows the first call).
 
@@ -191,9 +191,9 @@ def kernel_profile(function, calls: int = 5) -> tuple[int, float, bool]:
 
 
 NOTES = [
-    "Goals: issue 23 (8-bit in, 8-bit out), uint8 gamma and lut at most 1.0x cv2.LUT; issue 32, uint8 "
-    "equalize_histogram at most 1.0x cv2.equalizeHist by medians *and* by minima ('met' needs both here; 'min only' "
-    "/ 'median only' say which one holds).",
+    "Goals of the 8-bit pipelines (8-bit in, 8-bit out): uint8 gamma and lut at most 1.0x cv2.LUT; of the speed "
+    "round: uint8 equalize_histogram at most 1.0x cv2.equalizeHist by medians *and* by minima ('met' needs both "
+    "here; 'min only' / 'median only' say which one holds).",
     "",
     "What the uint8 rows cost (kernel history; Intel Sapphire Rapids VM, LLVM target sapphirerapids):",
     "- lut / gamma / stretch / quantize on uint8: one kernel: read the byte, one table look-up, write the byte. "
@@ -201,7 +201,7 @@ NOTES = [
     "vpgatherdd) and narrowed. The point operations' byte tables are cached by their parameters (a repeated call "
     "is one launch), as OpenCV users prepare the table once.",
     "- equalize_histogram (uint8): the histogram kernel, then the 256 bins' table on the host, then the look-up "
-    "kernel (issue 32: was a pair table with four more launches and reductions). The histogram (issue 32): each "
+    "kernel (was a pair table with four more launches and reductions). The histogram: each "
     "work block of 16384 lanes counts into its own 256 x 16 table, each SIMD lane into its own column (a gather, "
     "an add and a scatter a byte: no two lanes or threads share a counter), where Dr.Jit's scatter-add must check "
     "a packet's 16 addresses for equal ones (a 16-step loop with a horizontal add when they differ, as in a pair "

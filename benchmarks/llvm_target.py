@@ -120,7 +120,7 @@ def main(argv=None) -> int:
                 merged[name] = float(sorted(r[name] for r in runs[mode])[len(runs[mode]) // 2])
         results.append(merged)
     names = [k for k in results[0] if k != "target"]
-    lines = ["## LLVM target: would hardware gathers help the missed imaging goals? (issues 5, 6)", "",
+    lines = ["## LLVM target: would hardware gathers help the missed imaging goals?", "",
              f"Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/llvm_target.py --rounds "
              f"{args.rounds} --repeats {args.repeats}` (each column a fresh process with an empty `~/.drjit`; "
              f"median over the rounds of each process's median, ms); {load_note(load_before, load())}.", "",

@@ -13,13 +13,13 @@ Part A: a 512^3 int16 Shepp-Logan CT, 512x512 orthographic image.
 Part B (``--ct``): a clinical-size CT, 512 x 512 x 1800 int16 (about 0.94 GB), oblique 512x512
   MIP in a subprocess that builds the volume and renders it; its peak RSS comes from
   ``resource.getrusage`` (goal: < 10 s and peak < 3x the volume's size).
-Part C (``--axis``, issue 23 goal 1): axis-aligned ``--native-size --interpolation nearest`` MIP
+Part C (``--axis``, the 8-bit pipelines' first goal): axis-aligned ``--native-size --interpolation nearest`` MIP
   of a 512^3 int16 CT-like volume with noise, for axial, coronal and sagittal, against numpy's
   single-threaded ``max(axis)``, in interleaved rounds (ours, the previous column kernels
   ``--before REV`` on the same integrator, numpy), medians and minima; every image checked equal to
   numpy's; peak RSS of the process (volume + texture + renders) over the volume's bytes
   (goal: ours at most 1.0x numpy per view, peak at most 2.5x). Runs in a subprocess.
-Part D (``--vtk``, issue 23 goal 2; needs the ``bench`` extra: ``pip install -e .[bench]``): oblique
+Part D (``--vtk``, the 8-bit pipelines' second goal; needs the ``bench`` extra: ``pip install -e .[bench]``): oblique
   MIP (azimuth 30, elevation 20, 512x512, step 0.5 voxel, trilinear, brick skipping) against VTK's CPU
   ray caster ``vtkFixedPointVolumeRayCastMapper`` (maximum-intensity blend, 2 threads, sample distance
   0.5, auto-adjust off, off-screen window, parallel projection framing the volume's box as ours
@@ -322,9 +322,9 @@ def part_c(n: int, rounds: int, before: str | None) -> dict:
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
-#: Goal of issue 32 for the axis-aligned views: at most this times one read of the volume on both cores.
+#: Goal of the speed round for the axis-aligned views: at most this times one read of the volume on both cores.
 AXIS_GOAL = 1.25
-#: Goals of issue 32 for the oblique view against VTK: per image, and the first image of a new volume.
+#: Goals of the speed round for the oblique view against VTK: per image, and the first image of a new volume.
 OBLIQUE_GOAL, FIRST_GOAL = 0.2, 0.5
 
 
@@ -349,7 +349,7 @@ def print_part_c(c: dict, command: str) -> str:
              "numpy's.", "",
              f"Floor, one read of the stored volume on both cores (a Dr.Jit pass over the same slice streams, one "
              f"OR per word): {floor[0]:.1f} ({floor[1]:.1f}) ms; numpy's axial max split over two threads: "
-             f"{two[0]:.1f} ({two[1]:.1f}) ms. Goal (issue 32): each view at most {AXIS_GOAL}x the floor.", ""]
+             f"{two[0]:.1f} ({two[1]:.1f}) ms. Goal: each view at most {AXIS_GOAL}x the floor.", ""]
     sitk_on = bool(next(iter(c["views"].values()))["sitk"])
     head = "| view | ours | " + ("before (" + c["before"][:10] + ") | " if c["before"] else "") + \
         "numpy max(axis) 1 thread | " + ("SimpleITK MaximumProjection 2 threads | " if sitk_on else "") + \
@@ -509,7 +509,7 @@ def print_part_d(rows: list[dict], command: str) -> str:
              "vtkFixedPointVolumeRayCastMapper (maximum-intensity blend, 2 threads, sample distance 0.5, automatic "
              "sample distance off, linear interpolation, off-screen, parallel projection framing the volume's box as "
              f"ours does); {rows[0]['rounds']} interleaved rounds; s, median (min). First image: ours = half texture "
-             "+ brick grid + render of a new volume; VTK = mapper set-up + first render. Goals (issue 32): per "
+             "+ brick grid + render of a new volume; VTK = mapper set-up + first render. Goals: per "
              f"image at most {OBLIQUE_GOAL}x VTK, first image at most {FIRST_GOAL}x.", "",
              "| volume | ours per image | VTK per image | ours / VTK (medians) | (minima) | goal | met "
              "| ours first image | VTK first image | first: ours / VTK | goal | met |",

@@ -1,5 +1,5 @@
 """Benchmark: whole ``post`` pipelines, where Dr.Jit's lazy evaluation can fuse steps, against the
-same chains in OpenCV / numpy / Pillow (issue 23, goal 6: each chain at most 0.5x its peer).
+same chains in OpenCV / numpy / Pillow.
 
 Chains, from the loaded image to the result array (file I/O apart):
 
@@ -161,7 +161,7 @@ def markdown(args, cases, first, times, kernels) -> str:
     return "\n".join(lines + ["", NOTES])
 
 
-NOTES = """Chain A on 8-bit RGB (issue 32): the image stays bytes until `grey` (`Step.takes_bytes`), which reads
+NOTES = """Chain A on 8-bit RGB: the image stays bytes until `grey` (`Step.takes_bytes`), which reads
 R, G, B as 32-bit word gathers inside the kernel of the next step; `gamma` is fused with it (one pass: bytes in,
 float32 grey out); `sobel` runs the padded-window engine over that grey (numpy's padded copy, then one kernel);
 `normalize` finds min and max in one pass over the magnitude with |.| and the uncomputed ring left out in the

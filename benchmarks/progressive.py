@@ -1,4 +1,4 @@
-"""Benchmark: progressive rendering (issue 19) against one fixed-spp render, time budgets, error budgets.
+"""Benchmark: progressive rendering against one fixed-spp render, time budgets, error budgets.
 
 Measures, in one run:
 
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     lines = ["## Progressive rendering (passes, budgets, error estimate)", "",
              f"Machine: {os.cpu_count()} cores ({platform.machine()}), Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}. Load average (1 min) {load_before:.1f} before, "
-             f"{load_after:.1f} after: the machine is shared with other agents' tests and benchmarks, which slow "
+             f"{load_after:.1f} after: other processes (tests, benchmarks) ran alongside, which slow "
              "either side unpredictably; the interleaved rounds make the ratios fair, not the absolute times.",
              "Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/progressive.py "
              f"--rounds {args.rounds} --repeats {args.repeats} --target {args.target}"
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
                   f"One `mi.render` of N spp vs the same N spp in automatic passes (`Budget(spp=N)`: a first pass of "
                   f"~2^18 samples, then powers of two of ~2 s), {args.rounds} interleaved rounds after one warm-up "
                   "each (JIT compilation apart: the warm-up columns). Wall-clock ratios swing with the other "
-                  "agents' load; the process CPU time (all threads of this process) is steadier: it counts the "
+                  "processes' load; the process CPU time (all threads of this process) is steadier: it counts the "
                   "work the passes add, not the waiting. Accumulating a pass and estimating its error cost 1.7 + "
                   "4.9 ms at 512x512 (benchmarks/estimator.py), 0.3 % of a 2-s pass: the rest is each render "
                   "call's own set-up, and a loaded machine makes the passes slower, hence more of them.", "",

@@ -230,7 +230,7 @@ def sobol_part(args) -> None:
     pointillist.setup()
     load_before = os.getloadavg()
     repeats = max(args.repeats, 15)
-    lines = ["## sobol and zsobol (issue 31)", "",
+    lines = ["## sobol and zsobol", "",
              f"Machine: {platform.machine()}, {os.cpu_count()} cores; Python {platform.python_version()}, "
              f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}, libLLVM {dr.detail.llvm_version()}.",
              "Command: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/samplers.py --part sobol "
@@ -239,7 +239,7 @@ def sobol_part(args) -> None:
     # 1. cost at 16 spp, interleaved
     lines += [f"**Render time at 16 spp** (image evaluated; first call = JIT compile or ~/.drjit cache load; steady = "
               f"median of {repeats} interleaved rounds, wall clock and this process's CPU time (all its threads: "
-              "the work, without the waiting for other agents' jobs); the four scenes of a row group are loaded "
+              "the work, without the waiting for other processes); the four scenes of a row group are loaded "
               "together, so each pays alike for the others' instances; kernel operations: the render kernel's "
               "size in Dr.Jit IR operations)", "",
               "| scene | sampler | first call (s) | of which compile (s) | steady wall (s) | wall ratio vs independent "
@@ -339,10 +339,10 @@ def sobol_part(args) -> None:
     lines += ["",
               f"Load average (1, 5, 15 min): {load_before[0]:.1f} / {load_before[1]:.1f} / {load_before[2]:.1f} "
               "before, "
-              f"{load_mid[0]:.1f} after the timings, {load_after[0]:.1f} after the sweep, on 2 cores shared with other "
-              "agents' jobs: the interleaved rounds make the ratios fair, not the absolute times, which want a rerun "
-              "on a quiet machine. Spectra: `benchmarks/samplers_sobol_spectrum.png` (compare's error_spectrum.png "
-              "of this sweep)."]
+              f"{load_mid[0]:.1f} after the timings, {load_after[0]:.1f} after the sweep, on 2 cores with other "
+              "processes running: the interleaved rounds make the ratios fair, not the absolute times, which want a "
+              "rerun on a quiet machine. Spectra: `benchmarks/samplers_sobol_spectrum.png` (compare's "
+              "error_spectrum.png of this sweep)."]
     text = "\n".join(lines)
     print(text)
     if args.write:

@@ -1,4 +1,4 @@
-"""Benchmark: stiff scenes (issue 21), whitted's error-bound ray offsets against Mitsuba's.
+"""Benchmark: stiff scenes, whitted's error-bound ray offsets against Mitsuba's.
 
 Measures, in one run:
 
@@ -6,7 +6,7 @@ Measures, in one run:
    diffuse floor, one point light, 80x80, 4 spp; variants with a thin sphere and a grazing
    light) scaled by 1e-6 .. 1e6 and moved 1e3 from the origin, compared pixel by pixel with the
    same integrator at scale 1 (same seed): the fraction of pixels off by more than 1 %. For
-   ``whitted`` (this tree), ``whitted`` before issue 21 (Mitsuba's ``spawn_ray`` offsets; the file
+   ``whitted`` (this tree), ``whitted`` before the stiff-scenes round (Mitsuba's ``spawn_ray`` offsets; the file
    from ``--before``), and Mitsuba's ``path`` (max_depth 6) and ``direct``. Goals: whitted at most
    0.5 % at every scale, 2 % moved 1e3.
 2. The camera side: the scene moved 1e3, 1e4, 1e5 from the origin (float32 spacing there:
@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-#: The commit whose whitted.py is "before" (the branch point of issue 21).
+#: The commit whose whitted.py is "before" (the branch point of the stiff-scenes round).
 BEFORE = "4245953"
 SCALES = (1e-6, 1e-4, 1e4, 1e6)
 SHIFTS = (1e3, 1e4, 1e5)
@@ -280,8 +280,8 @@ def report(args, pixels, camera, instances, timing, offsets, seconds, loads):
     import mitsuba as mi
     from _timing import load_note
 
-    out = ["## Stiff scenes: scale and distance from the origin (issue 21, `benchmarks/stiff.py`)", "",
-           f"Machine: {platform.machine()}, 2 cores shared with other agents' jobs (loaded: timings are "
+    out = ["## Stiff scenes: scale and distance from the origin", "",
+           f"Machine: {platform.machine()}, 2 cores with other processes running (loaded: timings are "
            f"interleaved ratios), {platform.platform()}; Python {platform.python_version()}, "
            f"Mitsuba {mi.__version__}, Dr.Jit {dr.__version__}; {load_note(*loads)}. Run time {seconds:.0f} s. "
            "Reproduce: "
@@ -320,7 +320,7 @@ def report(args, pixels, camera, instances, timing, offsets, seconds, loads):
         out.append(f"| scenes/{row['scene']} | {w[0]:.3f} / {w[1]:.3f} | {w[2]:.3f} | {w[3]:.3f} "
                    f"| {c[0]:.3f} / {c[1]:.3f} | {c[2]:.3f} | {c[3]:.3f} | {row['first'][0]:.2f} / "
                    f"{row['first'][1]:.2f} | {row['ops'][0]} / {row['ops'][1]} |")
-    out += ["", "On this machine, loaded by other agents' jobs, the timing ratios vary by about 3-5 % from run to "
+    out += ["", "On this machine, loaded by other processes, the timing ratios vary by about 3-5 % from run to "
             "run; the median per-round CPU ratio is the figure to read."]
     if offsets:
         out += ["", "Rays that meet their own surface again, offset by gamma(n) M_S (worst fraction over radii "

@@ -8,10 +8,10 @@ operations that work through 256-entry tables and every dithering method
 return a ``drjit.llvm.TensorXu8`` for ``uint8`` input (see their modules).
 
 Importing this package points Dr.Jit at a usable libLLVM first (see
-:mod:`pointillist.llvm`).
+:mod:`pointillist.core.llvm`).
 """
 
-from pointillist.llvm import ensure_llvm as _ensure_llvm
+from pointillist.core.llvm import ensure_llvm as _ensure_llvm
 
 _ensure_llvm()
 

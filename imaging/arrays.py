@@ -17,7 +17,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, TensorXf, TensorXu8, UInt8
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["as_tensor", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared", "check_shape", "is_uint8",
            "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning", "replace_non_finite",

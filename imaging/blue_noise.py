@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["void_and_cluster"]
 

@@ -37,7 +37,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Array3u64, Float, UInt8, UInt32, UInt64
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import (TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar,
                                         replace_non_finite, uint8_array, warn_non_finite)
 

@@ -22,7 +22,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Bool, Float, UInt8, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar,
                                         to_uint8, uint8_array)
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
@@ -135,7 +135,11 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
         divide by the sum yourself for an averaging filter.
     border : str
         ``"zero"`` (default), ``"crop"``, ``"keep"``, ``"clamp"``, ``"reflect"``,
-        ``"mirror"``, ``"wrap"`` or ``"constant"`` (module docstring).
+        ``"mirror"``, ``"wrap"`` or ``"constant"`` (module docstring). The default differs
+        from the ecosystem's: ``scipy.ndimage`` and scikit-image reflect by default
+        (``border="reflect"`` here), OpenCV mirrors without repeating the edge
+        (``BORDER_REFLECT_101``: ``border="mirror"`` here); ``"zero"`` sets the ring where the
+        kernel does not fit to 0.
     normalize : bool
         Make the result positive (absolute value) and stretch it to 0..255:
         ``(|I| - min) * 255 / (max - min)``, min and max over the computed pixels only
@@ -289,6 +293,10 @@ def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, component
 def sobel(image: Any, *, border: str = "zero", components: bool = False):
     """Sobel gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' SOBEL_X and SOBEL_Y.
 
+    ``gy`` is positive where intensity grows *upwards* (towards row 0): the opposite sign of
+    OpenCV's ``Sobel(dy=1)`` and of ``scipy.ndimage.sobel(axis=0)``; ``gx`` has their sign.
+    The magnitude is the same either way.
+
     Parameters
     ----------
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
@@ -322,7 +330,9 @@ def prewitt(image: Any, *, border: str = "zero", components: bool = False):
     """Prewitt gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' PREWITT_X and PREWITT_Y.
 
     Same parameters, returns and edge cases as :func:`sobel`. Note PREWITT_X is
-    ``[[1, 0, -1]] * 3``, so ``gx`` is positive where intensity grows to the *left*.
+    ``[[1, 0, -1]] * 3``, so ``gx`` is positive where intensity grows to the *left*: the
+    opposite sign of SOBEL_X, of ``scipy.ndimage.prewitt(axis=1)`` and of scikit-image's
+    ``prewitt_v``; ``gy`` is positive upwards, as SOBEL_Y. The magnitude is the same either way.
 
     Examples
     --------

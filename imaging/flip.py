@@ -79,7 +79,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, to_numpy
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_decode
 from pointillist.imaging.neighbourhood import select_max, select_min

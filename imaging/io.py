@@ -10,7 +10,7 @@ Every write is atomic (written to a temporary file beside the target, then
 renamed over it) and refuses to overwrite a file that this process read as an
 input with :func:`read_exr` (or that is named in ``inputs=``).
 
-PNG previews are 8-bit, sRGB-encoded through colour-science. Policy for values
+PNG previews are 8-bit, sRGB-encoded by the imaging module's curve (in float64). Policy for values
 PNG cannot hold: NaN becomes 0, values are clipped to the displayable range.
 """
 
@@ -26,9 +26,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from pointillist import checks
-from pointillist.errors import one_line
-from pointillist.files import atomic_write, check_output_path, mark_input
+from pointillist.core import checks
+from pointillist.core.errors import one_line
+from pointillist.core.files import atomic_write, check_output_path, mark_input
 from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "to_8bit"]
@@ -61,7 +61,7 @@ def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     copies : int, optional
         How many float32 copies of the image the caller will hold at once (default 2, the reading
         itself): the memory they take is checked against what the machine has before any pixel is
-        read (:func:`pointillist.checks.memory`), so an 8x8 file claiming a 20000 x 20000 display
+        read (:func:`pointillist.core.checks.memory`), so an 8x8 file claiming a 20000 x 20000 display
         window is a ValueError, not a MemoryError or the kernel's out-of-memory killer.
 
     Returns
@@ -295,7 +295,7 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
         normals alone).
     metadata : mapping, optional
         Header attributes: str keys, values int, float, str or bool (stored as int); an integer
-        beyond 32 bits is stored as its decimal text (:func:`pointillist.checks.exr_attribute`).
+        beyond 32 bits is stored as its decimal text (:func:`pointillist.core.checks.exr_attribute`).
     layers : mapping, optional
         Extra channels, each (H, W), e.g. ``{"spp": counts}``.
     inputs : iterable of paths
@@ -357,19 +357,24 @@ def write_exr(path: str | os.PathLike, image: Any, metadata: Mapping[str, Any] |
 def to_8bit(image: Any, *, srgb: bool = True, max_value: float = 1.0) -> np.ndarray:
     """Return ``image`` as uint8 for display: divide by ``max_value``, sRGB-encode, clip, round.
 
-    NaN becomes 0; +inf becomes 255, -inf 0.
+    NaN becomes 0; +inf becomes 255, -inf 0. The sRGB curve is the imaging module's one
+    definition (:func:`pointillist.imaging.colour.srgb_encode_values`), computed here in float64:
+    the bytes equal colour-science's ``cctf_encoding`` rounded (the tests check every float32
+    input near a rounding boundary); the ``adaptive`` integrator evaluates the same function in
+    its kernel's float32.
     """
+    from drjit.llvm import Float64
+
+    from pointillist.imaging.colour import srgb_encode_values
+
     checks.real(max_value, "max_value", low=0.0, low_open=True, float32=False)
     pixels = to_numpy(as_tensor(image, "image", channels=(1, 3, 4))).astype(np.float64)
     pixels = np.nan_to_num(pixels / max_value, nan=0.0, posinf=1.0, neginf=0.0)
     pixels = np.clip(pixels, 0.0, 1.0)
     if srgb:
-        import colour
-
-        if pixels.ndim == 3 and pixels.shape[2] == 4:  # alpha stays linear
-            pixels[..., :3] = colour.cctf_encoding(pixels[..., :3], function="sRGB")
-        else:
-            pixels = colour.cctf_encoding(pixels, function="sRGB")
+        colour = pixels[..., :3] if pixels.ndim == 3 and pixels.shape[2] == 4 else pixels  # alpha stays linear
+        encoded = srgb_encode_values(Float64(np.ascontiguousarray(colour).ravel())).numpy()
+        colour[...] = encoded.reshape(colour.shape)
     return np.round(np.clip(pixels, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
@@ -385,7 +390,7 @@ def write_png(path: str | os.PathLike, image: Any, *, srgb: bool = True, max_val
         (H, W), (H, W, 1), (H, W, 3) or (H, W, 4).
     srgb : bool
         ``True`` (default): ``image`` is linear light and is sRGB-encoded
-        (colour-science's ``cctf_encoding``). ``False``: values are already
+        (:func:`to_8bit`). ``False``: values are already
         display-encoded.
     max_value : float
         The value shown as full white: 1.0 for renders, 255 for the imaging

@@ -40,7 +40,7 @@ from pointillist.imaging.spectrum import RadialSpectrum, low_frequency_energy, r
 __all__ = ["RELMSE_EPSILON", "FLIP_MIN_LUMINANCE", "FLIP_BACKENDS", "image_errors", "error_maps", "as_rgb",
            "luminance_error", "error_spectrum"]
 
-#: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)) (issue 4).
+#: Epsilon of the relative MSE, mean((x - ref)^2 / (ref^2 + eps)).
 RELMSE_EPSILON = 0.01
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["LPS_FROM_RAS", "ORTHOGONALITY_TOLERANCE", "check_affine", "snap_directions", "inverse_directions",
            "orientation_letters", "axis_codes", "view_labels", "draw_labels"]

@@ -44,7 +44,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Int32, UInt32, UInt64
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["INTERPOLATIONS", "KEYS_A", "KEYS_A_RANGE", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["NYQUIST", "LOW_FREQUENCY_CUTOFF", "RadialSpectrum", "power_spectrum", "frequency_radius",
            "radial_power_spectrum", "low_frequency_energy", "log_binned"]

@@ -27,7 +27,7 @@ import numpy as np
 from drjit.llvm import Array3f, Float
 
 import pointillist.imaging  # noqa: F401  (libLLVM first)
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["WINDOW_PRESETS", "parse_window", "check_window", "colormap_lut", "apply_window", "window_image"]
 

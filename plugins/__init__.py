@@ -23,7 +23,7 @@ after ``mi.set_variant``: when Mitsuba first builds the plugin (:func:`plugin_cl
 This package itself imports neither Mitsuba nor Dr.Jit (``pointillist -h`` lists the
 samplers without a libLLVM); its sub-packages, which hold the plugins, point Dr.Jit at a
 usable libLLVM first
-(:func:`pointillist.llvm.ensure_llvm`).
+(:func:`pointillist.core.llvm.ensure_llvm`).
 
 Usage::
 
@@ -120,7 +120,7 @@ def register() -> dict[str, str]:
     RuntimeError
         If no Mitsuba variant is set (call ``mi.set_variant`` first).
     """
-    from pointillist.llvm import ensure_llvm
+    from pointillist.core.llvm import ensure_llvm
 
     ensure_llvm()
     import mitsuba as mi

@@ -13,7 +13,7 @@ import numbers
 import mitsuba as mi
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["texture_property", "spectrum_property", "string_property", "boolean_property", "number_property",
            "integer_property", "transform_property", "scalar_transform"]
@@ -112,7 +112,7 @@ def number_property(props, name: str, default: float, *, minimum: float | None =
                     allow_inf: bool = False) -> float:
     """A real property as a float: finite (or +-inf with ``allow_inf``), never NaN, ``>= minimum``
     (``> minimum`` with ``strict``), and held by float32, in which the plugins compute
-    (:func:`pointillist.checks.real`: 4e38 or a positive 1e-50 are refused)."""
+    (:func:`pointillist.core.checks.real`: 4e38 or a positive 1e-50 are refused)."""
     return checks.real(props[name] if name in props else default, name, low=minimum, low_open=strict,
                        allow_inf=allow_inf)
 

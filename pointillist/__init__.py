@@ -20,14 +20,14 @@ def setup(variant: str = "llvm_ad_rgb", *, plugins: bool = True):
 
     Returns the ``mitsuba`` module. With ``plugins=False`` the plugins are not registered (yet):
     enough to parse a scene (about a third less start-up), not to build one that uses them; a
-    later ``setup()`` registers them. Raises :class:`pointillist.llvm.LLVMNotFoundError`
+    later ``setup()`` registers them. Raises :class:`pointillist.core.llvm.LLVMNotFoundError`
     when no usable libLLVM exists, ValueError for an unknown variant, and
-    :class:`pointillist.errors.UsageError` when the current folder no longer exists.
+    :class:`pointillist.core.errors.UsageError` when the current folder no longer exists.
     """
     import os
 
-    from pointillist.errors import UsageError
-    from pointillist.llvm import ensure_llvm
+    from pointillist.core.errors import UsageError
+    from pointillist.core.llvm import ensure_llvm
 
     try:  # Mitsuba's file resolver starts from the current folder: its import fails without one
         os.getcwd()
@@ -45,7 +45,7 @@ def setup(variant: str = "llvm_ad_rgb", *, plugins: bool = True):
         from pointillist import plugins as registry
 
         registry.register()
-    from pointillist import signals
+    from pointillist.core import signals
 
     signals.check()  # a safe point: start-up (imports, libLLVM check, plugins) is done
     return mi

@@ -59,7 +59,7 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.parsed_state import read_properties, resolving_from
 
 __all__ = ["PRECISION", "FAR", "Recentring", "recentre_rule", "float32_spacing", "sensor_positions", "stated_positions",

@@ -3,7 +3,7 @@
 Sub-commands are the modules of :mod:`pointillist.commands`. Bad input (and a
 file or folder that cannot be read or written) exits with status 2 and one line
 on stderr, never a traceback (set ``POINTILLIST_DEBUG=1`` to see one for an
-unexpected error). Ctrl-C exits with 130, SIGTERM with 143 (:mod:`pointillist.signals`).
+unexpected error). Ctrl-C exits with 130, SIGTERM with 143 (:mod:`pointillist.core.signals`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,10 @@ import signal
 import sys
 import warnings
 
-from pointillist import __version__, signals
-from pointillist.errors import Terminated, UsageError
+from pointillist import __version__
+
+from pointillist.core import signals
+from pointillist.core.errors import Terminated, UsageError
 
 __all__ = ["main", "build_parser"]
 
@@ -86,9 +88,9 @@ def _os_message(error: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
-    Runs inside the signal boundary (:mod:`pointillist.signals`; installed here for the call when
+    Runs inside the signal boundary (:mod:`pointillist.core.signals`; installed here for the call when
     the console script has not installed it already): SIGINT and SIGTERM stop the command at its
-    next safe point, where the ``KeyboardInterrupt`` / :class:`~pointillist.errors.Terminated`
+    next safe point, where the ``KeyboardInterrupt`` / :class:`~pointillist.core.errors.Terminated`
     raised unwinds it (temporary files removed, clusters closed); the status is 130 (Ctrl-C) or
     143 (SIGTERM), with one line on stderr. A signal that arrives after the last safe point still
     makes the status 130 / 143.
@@ -132,7 +134,7 @@ def _run(args: argparse.Namespace, name: str) -> int:
         print(f"{name}: error: {_os_message(error)}", file=sys.stderr)
         return 2
     except Exception as error:  # noqa: BLE001 - the one place that turns errors into exit codes
-        from pointillist.llvm import LLVMNotFoundError
+        from pointillist.core.llvm import LLVMNotFoundError
 
         if os.environ.get("POINTILLIST_DEBUG"):
             raise

@@ -1,7 +1,7 @@
 """The ``pointillist`` console script and ``python -m pointillist``.
 
 SIGINT and SIGTERM are blocked on this module's first line (held pending, not lost), the signal
-boundary (:mod:`pointillist.signals`) is installed, and only then are they let through: from
+boundary (:mod:`pointillist.core.signals`) is installed, and only then are they let through: from
 here on a signal at any moment of the process, start-up included, ends it with 130 / 143 and
 one line. Then :func:`pointillist.cli.main` runs the command.
 
@@ -27,7 +27,7 @@ __all__ = ["main"]
 
 def main() -> None:
     """Run ``pointillist`` with ``sys.argv`` and end the process with the command's exit status."""
-    from pointillist import signals
+    from pointillist.core import signals
 
     signals.install("pointillist", deadline=True)
     if _HELD is not None:

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["STEPS", "REPEATS", "SCENE_TIMEOUT", "REFUSED_BY_BOTH", "Check", "SceneReport", "check_scene",
            "verify_scenes", "scene_files", "mitsuba_render"]
@@ -371,14 +371,14 @@ def verify_scenes(paths: Iterable[str | os.PathLike], *, spp: int = 2, seed: int
     With ``isolate`` (the default) each scene runs in a process of its own, stopped after
     ``timeout`` seconds: one that aborts or hangs is reported, and the others still run.
     """
-    from pointillist.checks import integer
+    from pointillist.core.checks import integer
 
     spp = integer(spp, "spp", low=1)
     seed = integer(seed, "seed", low=0)
     files = scene_files(paths)
     params = dict(params or {})
     reports = []
-    from pointillist.terminal import progress_bar
+    from pointillist.core.terminal import progress_bar
 
     for path in progress_bar(files, progress=progress, desc="scenes", unit="scene"):
         if isolate:

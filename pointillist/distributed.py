@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
-from pointillist.digests import json_default
-from pointillist.errors import UsageError
+from pointillist.core import checks
+from pointillist.core.digests import json_default
+from pointillist.core.errors import UsageError
 
 __all__ = [
     "DEFAULT_RETRIES",
@@ -163,7 +163,7 @@ def start_cluster(n_workers: int, *, drjit_threads: int | None = None, quiet: bo
 def _start_resource_tracker() -> None:
     """Start multiprocessing's resource tracker (the process that removes the semaphores of the
     workers' queues when this process ends) without its "leaked semaphore" warning: a command
-    stopped at once (:mod:`pointillist.signals`) ends before its cluster is closed, and the
+    stopped at once (:mod:`pointillist.core.signals`) ends before its cluster is closed, and the
     tracker's cleaning up after it is not news (the one line about the signal stays the only one)."""
     import sys
     from multiprocessing import resource_tracker
@@ -311,7 +311,7 @@ class ResultCache:
 
     def put(self, key: str, result) -> None:
         """Store ``result`` under ``key`` (atomically); TypeError for a value that is not data."""
-        from pointillist.files import atomic_write
+        from pointillist.core.files import atomic_write
 
         arrays: dict[str, np.ndarray] = {}
         description = json.dumps(_encode(result, arrays), sort_keys=True)
@@ -419,7 +419,7 @@ def run_tasks(function: Callable, tasks: Sequence, *, client=None, cache: Result
     before stay in the cache); ``distributed.KilledWorker`` if a task kept
     killing its workers.
     """
-    from pointillist.terminal import progress_bar
+    from pointillist.core.terminal import progress_bar
 
     tasks = list(tasks)
     retries = checks.integer(retries, "retries", low=0)

@@ -35,11 +35,11 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
-from pointillist import signals
-from pointillist.digests import json_key
+from pointillist.core import checks
+from pointillist.core import signals
+from pointillist.core.digests import json_key
 from pointillist.distributed import DEFAULT_RETRIES, open_client, run_tasks, setup_process
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["NAMED_VIEWS", "PERSPECTIVE_MIN_FOV", "check_perspective", "view_axes", "view_frame", "patient_view",
            "normalised_volume", "project_volume", "mip_frame_task", "project_frames", "MipResult", "render_mip",
@@ -510,7 +510,7 @@ def _project_and_write(volume, volume_path, views: list[dict], names: list[Path]
 
     ``display``: the window ``(level, width)``, None for the first frame's value range (then used for
     every frame). Returns ``(integrator, 8-bit PNG frames, projection seconds, window)``."""
-    from pointillist.terminal import progress_bar
+    from pointillist.core.terminal import progress_bar
 
     integrator, frames = None, []
     project_s = sum(r["seconds"] for r in remote) if remote is not None else 0.0
@@ -537,7 +537,7 @@ def _write_gif(gif: Path, frames: list[np.ndarray], volume_path) -> None:
     """The turntable's animated GIF (25 frames a second, looping)."""
     import imageio.v2 as imageio
 
-    from pointillist.files import atomic_write, check_output_path
+    from pointillist.core.files import atomic_write, check_output_path
 
     check_output_path(gif, [volume_path], "--output (GIF)")
     atomic_write(gif, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000 / 25, loop=0))

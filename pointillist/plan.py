@@ -14,7 +14,7 @@ Each output must be writable now (its folder exists, or can be made, and takes n
 file is created and removed there to find out), must not be a folder where a file is expected,
 must not be an input (the same file by device and inode: through ``..``, symbolic and hard links
 too) nor lie inside an input folder, and no two outputs may be the same file. A failure is a
-:class:`~pointillist.errors.UsageError` naming the option, before any work.
+:class:`~pointillist.core.errors.UsageError` naming the option, before any work.
 
 :func:`inputs_digest` is the SHA-256 of the inputs' contents and the ``-D`` values: the cache key
 of compare's renders and tiles, and the fingerprint of progressive checkpoints, so that a changed
@@ -32,9 +32,9 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pointillist.digests import file_digest
-from pointillist.errors import UsageError
-from pointillist.files import check_output_path, existing_ancestor, unwritable
+from pointillist.core.digests import file_digest
+from pointillist.core.errors import UsageError
+from pointillist.core.files import check_output_path, existing_ancestor, unwritable
 from pointillist.parsed_state import read_properties, resolving_from
 
 __all__ = ["Output", "Plan", "scene_inputs", "inputs_digest", "scene_digest"]
@@ -77,11 +77,11 @@ class Plan:
     >>> plan.check()
     Traceback (most recent call last):
     ...
-    pointillist.errors.UsageError: PNG preview: a.exr is also the --output file
+    pointillist.core.errors.UsageError: PNG preview: a.exr is also the --output file
     >>> Plan(outputs=[Output(Path("a.jpg"), "--output", suffixes=(".png", ".exr"))]).check()
     Traceback (most recent call last):
     ...
-    pointillist.errors.UsageError: --output: expected a .png or .exr file name, got a.jpg
+    pointillist.core.errors.UsageError: --output: expected a .png or .exr file name, got a.jpg
     """
 
     inputs: list[Path] = field(default_factory=list)
@@ -104,7 +104,7 @@ class Plan:
 
     def check(self) -> None:
         """UsageError for the first output that cannot be written, is an input or repeats another
-        (:func:`pointillist.files.check_output_path` for each file)."""
+        (:func:`pointillist.core.files.check_output_path` for each file)."""
         seen: dict[str, Output] = {}
         for out in self.outputs:
             key = os.path.realpath(out.path)

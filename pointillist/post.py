@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pointillist import signals
-from pointillist.errors import UsageError
-from pointillist.files import input_file
+from pointillist.core import signals
+from pointillist.core.errors import UsageError
+from pointillist.core.files import input_file
 
 __all__ = ["AppliedSteps", "apply_steps", "PostResult", "post_process", "step_list", "histogram_plot", "POST_COPIES"]
 
@@ -227,7 +227,7 @@ def histogram_plot(path: Path, before, after, *, linear_before: bool, title: str
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
     for ax, data, label in ((axes[0], before, "before"), (axes[1], after, "after")):

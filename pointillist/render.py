@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 from pointillist.render_output import check_preview, output_path, render_outputs, write_render
 
 __all__ = ["RenderSummary", "render_file"]
@@ -72,7 +72,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         itself, or lies in a folder that does not exist.
     """
     import pointillist
-    from pointillist import signals
+    from pointillist.core import signals
     from pointillist.camera_relative import make_camera_relative, offset_text
     from pointillist.channels import channel_layout
     from pointillist.plan import Output, Plan, scene_inputs
@@ -83,7 +83,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
                    or checkpoint is not None or resume)
     tiled = bool(tiles or workers or scheduler or cache)
     if threads is not None:
-        from pointillist.checks import integer
+        from pointillist.core.checks import integer
 
         threads = integer(threads, "threads", low=1, high=1024)
         if progressive or tiled:
@@ -193,7 +193,7 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
     A second signal during the passes abandons the pass in flight: the EXR and the progress log
     of the passes done are written then (no PNG: the process ends at once).
     """
-    from pointillist import signals
+    from pointillist.core import signals
     from pointillist.progressive import Budget, checkpoint_path, render_progressive, write_progress
 
     if time_budget is None and target_error is None:

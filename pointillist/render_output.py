@@ -5,14 +5,14 @@ A render's EXR is written by Mitsuba's own writer (``mitsuba.Bitmap``, as ``Bitm
 writes a render: float32, lossless PIZ compression, a ``generatedBy`` attribute), so that a
 plain render never imports numpy or the OpenEXR package (a tenth of a second of every start).
 :func:`pointillist.imaging.io.read_exr` reads it as it reads the imaging module's EXRs. Every
-file is written atomically and never over an input (:mod:`pointillist.files`).
+file is written atomically and never over an input (:mod:`pointillist.core.files`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["SAMPLE_COUNT_LAYER", "output_path", "render_outputs", "check_preview", "write_render",
            "write_render_exr", "write_sample_heatmap"]
@@ -86,14 +86,14 @@ def write_render_exr(out: Path, image, layout, metadata: dict, *, extra_layers: 
                      inputs=()) -> None:
     """Write a render's EXR through Mitsuba's writer: the channels of ``layout.kept()`` (colour,
     alpha, AOV layers), then ``extra_layers`` ((H, W) each, by name), with ``metadata`` (see
-    :func:`pointillist.checks.exr_attribute`) in the header. A Dr.Jit ``image`` without extra layers goes to the
+    :func:`pointillist.core.checks.exr_attribute`) in the header. A Dr.Jit ``image`` without extra layers goes to the
     file without numpy.
     """
     import drjit as dr
     import mitsuba as mi
 
-    from pointillist.checks import exr_attribute
-    from pointillist.files import atomic_write, check_output_path
+    from pointillist.core.checks import exr_attribute
+    from pointillist.core.files import atomic_write, check_output_path
     from pointillist.scene import thread_count
 
     out = check_output_path(out, inputs)
@@ -139,7 +139,7 @@ def write_sample_heatmap(path: Path, counts, *, inputs=()) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     counts = np.asarray(counts, dtype=np.float64)
     height, width = counts.shape

@@ -10,11 +10,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from pointillist import signals
-from pointillist.checks import UINT32_MAX, memory
+from pointillist.core import signals
+from pointillist.core.checks import UINT32_MAX, memory
 from pointillist.camera_relative import make_camera_relative
 from pointillist.parsed_state import references, resolving_from
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["parse_defines", "ParsedScene", "parse_scene", "instantiate_scene", "attach_films", "load_scene",
            "check_scene_file", "root_cause", "top_level_objects", "add_node",
@@ -251,7 +251,7 @@ def load_scene(path: str | Path, params: dict[str, str] | None = None):
 def check_scene_file(path: str | Path) -> Path:
     """``path`` as a Path; UsageError unless it is an existing file (a folder is named as such) whose
     full name is UTF-8 (Mitsuba takes file names as UTF-8 text only)."""
-    from pointillist.files import input_file
+    from pointillist.core.files import input_file
 
     path = input_file(path, "scene")
     try:
@@ -307,9 +307,9 @@ class RenderTiming:
 
 def check_sample_count(width: int, height: int, spp: int, channels: int = 4) -> None:
     """UsageError unless ``width x height`` has pixels, ``width x height x spp`` is at most
-    :data:`pointillist.checks.UINT32_MAX`, the film's ``channels`` (and weights) fit one tensor, and
+    :data:`pointillist.core.checks.UINT32_MAX`, the film's ``channels`` (and weights) fit one tensor, and
     the render's memory (the film three times over) is available
-    (:func:`pointillist.checks.memory`): a 30000 x 30000 film crashed Mitsuba.
+    (:func:`pointillist.core.checks.memory`): a 30000 x 30000 film crashed Mitsuba.
 
     That many samples make one wavefront of 32-bit lanes. Above it Mitsuba splits the render into
     passes, which fails (an spp that is not a multiple of the pass count, Python integrators) or
@@ -321,7 +321,7 @@ def check_sample_count(width: int, height: int, spp: int, channels: int = 4) -> 
     >>> check_sample_count(256, 256, 65536)
     Traceback (most recent call last):
     ...
-    pointillist.errors.UsageError: spp: 256x256 pixels at 65536 spp is 4294967296 samples, more than one render
+    pointillist.core.errors.UsageError: spp: 256x256 pixels at 65536 spp is 4294967296 samples, more than one render
     takes (2^32 - 1); use fewer spp, or --tiles to split the film
     """
     if width < 1 or height < 1:

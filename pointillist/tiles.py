@@ -39,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.distributed import DEFAULT_RETRIES, ResultCache, register_result_type, run_tasks, setup_process
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = [
     "Tile",

@@ -1,4 +1,4 @@
-"""The far-from-the-origin test scene of issue 30, written as Mitsuba XML with its positions offset.
+"""The far-from-the-origin test scene of the far-origin round, written as Mitsuba XML with its positions offset.
 
 Three spheres (Phong, mirror conductor, glass dielectric) on a diffuse floor, one point light,
 80x80 at 4 spp, box filter (the scene of tests/test_stiff.py, main variant): every position the

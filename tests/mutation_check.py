@@ -1,4 +1,4 @@
-"""Plant known bugs one at a time and check that the tests notice (issue 22).
+"""Plant known bugs one at a time and check that the tests notice.
 
 Each mutant is a list of exact textual substitutions in the library sources (each ``old`` must
 occur exactly once in the files it is looked for in, so a moved helper is reported as

@@ -1,4 +1,4 @@
-"""pointillist.checks: the shared argument checks (TypeError for a wrong type, ValueError for a bad
+"""pointillist.core.checks: the shared argument checks (TypeError for a wrong type, ValueError for a bad
 value, the argument named), and the float32 rule for reals."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pointillist import checks
-from pointillist.checks import FLOAT32_MAX, boolean, choice, float32_finite, integer, real, seed, uint32
+from pointillist.core import checks
+from pointillist.core.checks import FLOAT32_MAX, boolean, choice, float32_finite, integer, real, seed, uint32
 
 
 def test_float32_max_is_float32s_largest_finite_value():

@@ -108,7 +108,7 @@ def test_luminance_uses_rec709_weights():
 
 
 def test_non_finite_rule():
-    """NaN -> 0, +inf -> white (max_value), -inf -> 0, one NonFiniteWarning with the count (issue 17:
+    """NaN -> 0, +inf -> white (max_value), -inf -> 0, one NonFiniteWarning with the count (the hostile-input round:
     rgb_to_hsv gave V = 1e30, hsv_to_rgb -1e30, luminance passed +-inf, none warned)."""
     rgb = np.array([[[np.inf, 0.5, 0.0], [np.nan, -np.inf, 1.0]]], np.float32)
     clean = np.array([[[1.0, 0.5, 0.0], [0.0, 0.0, 1.0]]], np.float32)
@@ -226,3 +226,35 @@ def test_pair_route_one_kernel_and_no_aliasing(aligned):
     assert {k["hash"] for k in kernels} <= compiled  # no recompilation (hashes: not ~/.drjit's cache_hit)
     image[...] = 0                                        # the result is already computed
     np.testing.assert_allclose(np.asarray(result)[..., 1:], expected[..., 1:], atol=2e-6)
+
+
+def _boundary_inputs() -> np.ndarray:
+    """Every float32 in 0..1 within 64 ulps of a linear value whose sRGB encoding x 255 is k + 1/2
+    (where rounding to 8 bits can go either way), plus 2^20 evenly spaced values."""
+    linear = colour.cctf_decoding((np.arange(256) + 0.5) / 255.0, function="sRGB")
+    bits = np.float32(linear).view(np.uint32).astype(np.int64)[:, None] + np.arange(-64, 65)
+    near = np.clip(bits, 0, None).astype(np.uint32).view(np.float32).ravel()
+    x = np.unique(np.concatenate([near, np.linspace(0, 1, 1 << 20, dtype=np.float32), [0.0, 1.0]]))
+    return x[(x >= 0) & (x <= 1)].astype(np.float32)
+
+
+def test_one_srgb_curve_for_the_png_and_the_adaptive_integrator(dr):
+    """The PNG's bytes (``to_8bit``, the imaging module's curve in float64) equal colour-science's
+    encoding rounded, at every float32 input near a rounding boundary; the adaptive integrator's
+    display value (the same curve in float32) rounds to the same byte except within float32
+    rounding of a half step, and never more than 1 apart."""
+    from drjit.llvm import Float
+
+    from pointillist.imaging.io import to_8bit
+    from pointillist.plugins.integrators.adaptive import srgb_display
+
+    x = _boundary_inputs()
+    reference = np.round(colour.cctf_encoding(x.astype(np.float64), function="sRGB") * 255.0).astype(np.uint8)
+    png = to_8bit(x.reshape(1, -1))[0]
+    np.testing.assert_array_equal(png, reference)
+    shown = np.clip(np.rint(srgb_display(Float(x)).numpy()), 0, 255).astype(np.uint8)
+    differ = shown != png
+    exact = colour.cctf_encoding(x[differ].astype(np.float64), function="sRGB") * 255.0
+    assert np.abs(shown.astype(int) - png).max() <= 1
+    assert np.all(np.abs(exact - np.floor(exact) - 0.5) < 1e-4)            # only at half steps
+    assert 0 < differ.sum() < len(x) / 1000

@@ -17,7 +17,7 @@ from pointillist.compare import RenderRecord, Task
 from pointillist.imaging.metrics import image_errors
 from pointillist.compare.methods import METHODS, Method, configure_scene, resolve_methods, setting_label
 from pointillist.compare.tables import equal_error_ranking, equal_time_ranking, fit_slope
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 ROOT = Path(__file__).resolve().parent.parent
 EDGES = ROOT / "scenes" / "edges.xml"

@@ -95,7 +95,7 @@ def test_cached_rerun_does_not_build_the_scene(mi, tmp_path, monkeypatch):
     _compare(out)
     assert len(built) == 1 and json.loads(facts[0].read_text())["width"] == 8
     # a sample count the film cannot take is refused from the stored facts too, before any render
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
 
     with pytest.raises(UsageError, match="sample"):
         _compare(out, spp=(2**31,))

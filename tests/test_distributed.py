@@ -131,7 +131,7 @@ def test_tile_grid_covers_every_pixel_once():
         tile_grid(4, 4, 5, 1)  # more tile rows than pixel rows
     with pytest.raises(ValueError, match="^width: expected an integer >= 1, got 0$"):
         tile_grid(0, 4, 1, 1)
-    with pytest.raises(TypeError, match="^rows: expected an integer, got float 1.5$"):  # pointillist.checks
+    with pytest.raises(TypeError, match="^rows: expected an integer, got float 1.5$"):  # pointillist.core.checks
         tile_grid(4, 4, 1.5, 1)
 
 
@@ -175,7 +175,7 @@ def test_assemble_tiles_places_and_checks():
 def test_render_task_validates():
     with pytest.raises(ValueError, match="^spp: expected an integer in 1..4294967295, got 0$"):
         RenderTask(DEFAULT, spp=0)
-    with pytest.raises(TypeError, match="^spp: expected an integer, got float 2.5$"):  # pointillist.checks
+    with pytest.raises(TypeError, match="^spp: expected an integer, got float 2.5$"):  # pointillist.core.checks
         RenderTask(DEFAULT, spp=2.5)
     with pytest.raises(ValueError, match="^seed: expected an integer in 0..4294967295, got 4294967296$"):
         RenderTask(DEFAULT, seed=2**32)
@@ -310,7 +310,7 @@ def test_distributed_equals_serial(mi, client):
 
 
 def test_task_error_reaches_the_client(client):
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
 
     with pytest.raises(UsageError, match="no such file"):
         run_tasks(render_task, [RenderTask("/nonexistent/scene.xml")], client=client, retries=1, progress=False)
@@ -319,7 +319,7 @@ def test_task_error_reaches_the_client(client):
 def test_connect_to_missing_scheduler_is_a_usage_error():
     pytest.importorskip("distributed")
     from pointillist.distributed import connect
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
 
     with pytest.raises(UsageError, match="--scheduler: cannot connect"):
         connect("tcp://127.0.0.1:9", timeout=1)
@@ -397,12 +397,20 @@ def test_render_cli_tiles_workers_and_cache(cli, tmp_path, mi):
     (["--tiles", "0x2"], "--tiles"),
     (["--tiles", "30x1"], "do not fit"),
     (["--workers", "0"], "--workers"),
-    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:9"], "not both"),
 ])
 def test_render_cli_bad_distributed_options(cli, tmp_path, argv, message):
     proc = cli("render", DEFAULT, "-o", tmp_path / "x.exr", "--spp", "1", "-D", "res=20", *argv)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("command", [["render", DEFAULT], ["compare", DEFAULT], ["mip", "phantom"]])
+def test_every_distributed_command_takes_workers_or_a_scheduler_not_both(cli, tmp_path, command):
+    """The Dask options are declared once for the three commands: the same names, the same refusal."""
+    proc = cli(*command, "--workers", "2", "--scheduler", "tcp://127.0.0.1:9")
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == (f"pointillist {command[0]}: error: argument --scheduler: not allowed with "
+                                   "argument --workers")
 
 
 @pytest.mark.slow  # ~25 s: a compare sweep twice, serial and on a cluster

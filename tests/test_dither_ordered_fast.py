@@ -1,4 +1,4 @@
-"""Tests of the one-pass ordered-dithering path of imaging.dither (issue 7, "Speed").
+"""Tests of the one-pass ordered-dithering path of imaging.dither.
 
 1-bit ordered dithering compares each value with a per-entry intensity threshold
 (``intensity_thresholds``) instead of computing p per pixel; uint8 input is read as bytes; the

@@ -1,6 +1,6 @@
-"""Camera-relative rendering (issue 30): the same image wherever the scene sits.
+"""Camera-relative rendering: the same image wherever the scene sits.
 
-Evidence: the scene of issue 30 (tests/far_scenes.py) written into the XML 1e4 .. 1e6 from the
+Evidence: the far-origin scene (tests/far_scenes.py) written into the XML 1e4 .. 1e6 from the
 origin and rendered through ``pointillist render`` against the same scene at the origin (float32
 coordinates 1e6 from the origin are 0.0625 apart, so before this change 2-37 % of the pixels
 changed); every position a scene can state, checked plugin by plugin against its float64 value
@@ -24,7 +24,7 @@ from test_stiff import fraction_off
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
-#: Goal of issue 30: at most this fraction of pixels more than 1 % off at offsets 1e4 .. 1e6.
+#: Goal: at most this fraction of pixels more than 1 % off at offsets 1e4 .. 1e6.
 GOAL = 0.005
 
 
@@ -164,7 +164,7 @@ def test_sensor_argument_is_checked(mi):
 
     with pytest.raises(ValueError, match="^sensor: expected an integer >= 0, got -1$"):
         make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=-1)
-    for bad in (1.0, True, "0"):  # pointillist.checks: a value of another type is a TypeError
+    for bad in (1.0, True, "0"):  # pointillist.core.checks: a value of another type is a TypeError
         with pytest.raises(TypeError, match="^sensor: expected an integer, got "):
             make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=bad)
     parsed = make_camera_relative(parse_scene(SCENES / "default.xml"), sensor=3)
@@ -638,7 +638,7 @@ def test_several_sensors_each_renders_as_at_the_origin(mi, tmp_path):
 def test_defines_and_includes_work_as_before(mi, tmp_path):
     """An offset given with ``-D`` to an included file of shapes: the scene moves, the image is the
     one at the origin, and an unknown ``-D`` is still refused."""
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.scene import load_scene
 
     (tmp_path / "shapes.xml").write_text('''<scene version="3.0.0">

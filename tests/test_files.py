@@ -1,5 +1,5 @@
-"""The ground-layer file and terminal rules: pointillist.files (output check, atomic writes),
-pointillist.terminal (when a progress bar is drawn) and signals.held (the mask of atomic_write)."""
+"""The ground-layer file and terminal rules: pointillist.core.files (output check, atomic writes),
+pointillist.core.terminal (when a progress bar is drawn) and signals.held (the mask of atomic_write)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import threading
 
 import pytest
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 
 class _Stream(io.StringIO):
@@ -24,7 +24,7 @@ class _Stream(io.StringIO):
 
 
 def test_a_bar_is_drawn_only_when_asked_for_and_on_a_terminal():
-    from pointillist.terminal import draws_progress
+    from pointillist.core.terminal import draws_progress
 
     assert draws_progress(True, _Stream(True)) is True
     assert draws_progress(False, _Stream(True)) is False      # not asked for
@@ -37,7 +37,7 @@ def test_a_bar_is_drawn_only_when_asked_for_and_on_a_terminal():
 
 
 def test_a_bar_off_a_terminal_counts_without_drawing(monkeypatch):
-    from pointillist.terminal import progress_bar
+    from pointillist.core.terminal import progress_bar
 
     err = _Stream(False)
     monkeypatch.setattr(sys, "stderr", err)
@@ -50,7 +50,7 @@ def test_a_bar_off_a_terminal_counts_without_drawing(monkeypatch):
 
 
 def test_check_output_path_refuses_each_kind_of_bad_output(tmp_path):
-    from pointillist.files import check_output_path, mark_input
+    from pointillist.core.files import check_output_path, mark_input
 
     good = tmp_path / "a.exr"
     assert check_output_path(good, name="--output") == good
@@ -99,7 +99,7 @@ def test_save_figure_checks_the_path_and_closes_the_figure(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     fig = plt.figure(figsize=(1, 1))
     save_figure(fig, tmp_path / "f.png", dpi=20)
@@ -113,7 +113,7 @@ def test_save_figure_checks_the_path_and_closes_the_figure(tmp_path):
 
 @pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
 def test_held_signals_wait_for_the_end_of_the_block():
-    from pointillist import signals
+    from pointillist.core import signals
 
     got = []
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: got.append(signum))

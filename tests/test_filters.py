@@ -295,7 +295,7 @@ def test_post_steps_registered_and_run(rng, tmp_path, cli):
     result = cli("post", source, "-o", tmp_path / "edges.png", "--steps", "sobel;normalize;threshold:level=128")
     assert result.returncode == 0, result.stderr
     ramp = np.asarray(Image.open(source).convert("L")).astype(np.float32)
-    # normalize after a zero-border step leaves that step's uncomputed ring out (issue 17)
+    # normalize after a zero-border step leaves that step's uncomputed ring out
     expected = out(F.threshold(F.normalize(F.sobel(ramp), ring=1), 128))
     written = np.asarray(Image.open(tmp_path / "edges.png").convert("L")).astype(np.float32)
     np.testing.assert_array_equal(written, expected)
@@ -306,7 +306,7 @@ def test_post_steps_registered_and_run(rng, tmp_path, cli):
 
 
 def test_normalize_leaves_the_uncomputed_ring_out():
-    """Issue 17: ``normalize`` alone counted the zero border ring, so ``normalize(correlate(...))``
+    """``normalize`` alone counted the zero border ring, so ``normalize(correlate(...))``
     differed from ``correlate(..., normalize=True)`` (193..255 against 0..255 on a positive image);
     with ``ring`` the two agree, and ``post`` passes the ring of the window step before."""
     from pointillist.post import apply_steps
@@ -332,3 +332,27 @@ def test_normalize_leaves_the_uncomputed_ring_out():
     for bad in (1.5, True, "1"):  # not an integer: a TypeError (the argument contract)
         with pytest.raises(TypeError, match="^ring: expected an integer"):
             F.normalize(img, ring=bad)
+
+
+def test_the_signs_the_conventions_state_against_scipy_opencv_and_scikit_image():
+    """SOBEL_Y and PREWITT_Y are positive upwards, PREWITT_X positive leftwards (the conventions
+    page and the docstrings say so): the opposite of scipy's, OpenCV's and scikit-image's."""
+    import cv2
+    import scipy.ndimage as ndi
+    import skimage.filters as skf
+
+    from pointillist.imaging.filters import correlate
+
+    right = np.tile(np.arange(7, dtype=np.float32) * 3, (7, 1))   # intensity grows to the right
+    down = right.T.copy()                                          # ... and downwards
+    inner = (slice(1, -1), slice(1, -1))
+    ours = {name: np.asarray(correlate(image, name))[inner]
+            for name, image in (("sobel_x", right), ("prewitt_x", right), ("sobel_y", down), ("prewitt_y", down))}
+    np.testing.assert_allclose(ours["sobel_x"], ndi.sobel(right, axis=1)[inner])
+    np.testing.assert_allclose(ours["sobel_x"], cv2.Sobel(right, cv2.CV_32F, 1, 0)[inner])
+    np.testing.assert_allclose(ours["sobel_y"], -ndi.sobel(down, axis=0)[inner])
+    np.testing.assert_allclose(ours["sobel_y"], -cv2.Sobel(down, cv2.CV_32F, 0, 1)[inner])
+    np.testing.assert_allclose(ours["prewitt_x"], -ndi.prewitt(right, axis=1)[inner])
+    np.testing.assert_allclose(ours["prewitt_x"], -3 * skf.prewitt_v(right)[inner], rtol=1e-6)
+    np.testing.assert_allclose(ours["prewitt_y"], -ndi.prewitt(down, axis=0)[inner])
+    assert ours["sobel_y"].min() < 0 and ours["prewitt_x"].max() < 0   # the signs are not zero by accident

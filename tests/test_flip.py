@@ -1,7 +1,7 @@
 """FLIP on Dr.Jit (pointillist.imaging.flip) against flip-evaluator, the reference implementation.
 
 flip-evaluator (NVIDIA's package) stays the reference: every agreement test runs it on the same
-pair. The contract (issue 32): mean FLIP within 1e-3 and the maps within 1e-2 per pixel at the
+pair. The contract: mean FLIP within 1e-3 and the maps within 1e-2 per pixel at the
 99th percentile, on real renders of the project's scenes and on scikit-image's photographs. The
 two implementations do the same float32 operations in the same order (only the transcendental
 functions differ in their last bits), so the measured agreement is far tighter (maps within
@@ -30,7 +30,7 @@ from pointillist.imaging.flip import (DEFAULT_PPD, FLIP_CONSTANTS, TONEMAPPERS, 
                                       pixels_per_degree, tonemapper_x_max)
 from skimage import data
 
-#: The contract of issue 32.
+#: The contract.
 MEAN_CONTRACT, P99_CONTRACT = 1e-3, 1e-2
 #: Drift bounds, some 30x what is measured.
 MEAN_DRIFT, P99_DRIFT, MAX_DRIFT = 1e-6, 5e-5, 1e-3

@@ -1,4 +1,4 @@
-"""Hostile input (issue 17): every command with malformed files, degenerate parameters and outputs
+"""Hostile input: every command with malformed files, degenerate parameters and outputs
 that cannot be written.
 
 Most cases run in ONE subprocess (tests/_hostile_driver.py calls :func:`pointillist.cli.main` for
@@ -91,7 +91,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("compare-reference-spp-zero", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--reference-spp", "0"], ERROR),
     # Regression (defect 1): a black scene's own reference and an all-NaN or all-zero reference aborted.
     ("compare-black-scene", ["compare", "{d}/dark.xml", "--out", "{o}/c", *CMP], OK),
-    # Issue 26 (defect 7): a reference with NaN or +-inf made every error NaN, or failed after the sweep: refused.
+    # a reference with NaN or +-inf made every error NaN, or failed after the sweep: refused.
     ("compare-nan-reference", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--spp", "1", "--samplers", "grid",
                                "--no-progress", "--reference", "{d}/nan8.exr"], ERROR),
     ("compare-inf-reference", ["compare", "{d}/dark.xml", "--out", "{o}/c", "--spp", "1", "--samplers", "grid",
@@ -437,7 +437,7 @@ def test_hostile_inputs_untouched(hostile):
 
 def test_hostile_flip_and_filter(hostile):
     """A black scene (its own reference) and an all-zero reference: every row gets a finite FLIP
-    (defect 1: these aborted with exit 134; an all-NaN one is refused since issue 26), and the
+    (defect 1: these aborted with exit 134; an all-NaN one is refused now), and the
     output and results.md say which film filter the scene uses (only a box filter is the course's
     plain average)."""
     import csv
@@ -504,7 +504,7 @@ _SIGNAL_DRIVER = textwrap.dedent("""
 @pytest.mark.parametrize("count", [1, 2], ids=["one-signal", "two-signals"])
 def test_signal_during_write_leaves_no_file(tmp_path, name, status, word, count):
     """Defect 7: SIGTERM (like Ctrl-C) during a write exits 143 (130) with one line and no
-    temporary file. Issue 26: a signal is only recorded where it lands, so the write in flight
+    temporary file. a signal is only recorded where it lands, so the write in flight
     completes (the file is whole, never cut) and the command stops after it; a second signal ends
     the process at once: the temporary file is removed and nothing is written."""
     from PIL import Image
@@ -577,7 +577,7 @@ def test_resize_refuses_huge_sizes_up_front():
 
 
 def test_atomic_write_cleans_up_and_names_the_path(tmp_path):
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     def fail(tmp):
         Path(tmp).write_text("half")

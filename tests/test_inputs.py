@@ -1,4 +1,4 @@
-"""Issue 26, part B: inputs read silently wrong, and parameters checked in float64 but used in float32.
+"""inputs read silently wrong, and parameters checked in float64 but used in float32.
 
 Each test holds one defect of the issue (or one found beyond it while trying hostile inputs): it
 failed before the fix. Independent references: OpenCV's readers (``cv2.imread``), numpy, nibabel's
@@ -369,7 +369,7 @@ def test_library_messages_reach_the_user_as_one_line(tmp_path, monkeypatch):
 
 
 def test_one_line():
-    from pointillist.errors import one_line
+    from pointillist.core.errors import one_line
 
     assert one_line("a\n  b \n\n c") == "a b c"
     assert one_line("x" * 500) == "x" * 397 + "..."
@@ -643,7 +643,7 @@ def test_decompression_bomb_is_one_line(tmp_path):
 def test_neurological_leaves_the_sagittal_view_and_refuses_a_turntable(mi, tmp_path):
     """--neurological mirrored the sagittal view too, whose horizontal axis is anterior-posterior
     (3D Slicer and ITK-SNAP flip only axial and coronal views); a turntable would flip mid-way."""
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.mip import patient_view, render_mip
 
     assert patient_view("sagittal", neurological=True)["labels"] == patient_view("sagittal")["labels"]

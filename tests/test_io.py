@@ -56,7 +56,7 @@ def test_write_refuses_inputs_and_bad_arguments(tmp_path):
     other.write_bytes(b"")
     with pytest.raises(ValueError, match="refusing"):
         write_exr(other, np.ones((2, 2)), inputs=[other])
-    with pytest.raises(ValueError, match="image: expected 1 or 2 or 3 or 4 channels"):  # 2: Y and A (issue 26)
+    with pytest.raises(ValueError, match="image: expected 1 or 2 or 3 or 4 channels"):  # 2: Y and A
         write_exr(tmp_path / "y.exr", np.zeros((2, 2, 5)))
     with pytest.raises(ValueError, match="shape"):
         write_exr(tmp_path / "y.exr", np.zeros(5))

@@ -44,7 +44,7 @@ def _lint_imports(layout: Path) -> subprocess.CompletedProcess:
 def test_import_layers_hold(tmp_path):
     proc = _lint_imports(_installed_layout(tmp_path))
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]
-    assert "4 kept, 0 broken" in proc.stdout
+    assert "5 kept, 0 broken" in proc.stdout
 
 
 def test_a_crossed_layer_is_caught(tmp_path):
@@ -74,6 +74,23 @@ def test_every_module_of_pointillist_is_in_a_layer():
     modules |= {f"pointillist.{p.parent.name}" for p in (ROOT / "pointillist").glob("*/__init__.py")}
     assert modules - layered == set(), f"not in any layer of pyproject's import-linter contract: {modules - layered}"
     assert {"pointillist.plugins", "pointillist.imaging"} <= layered
+
+
+def test_the_ground_package_loads_nothing_heavy():
+    """pointillist.core is the ground: importing all of it loads no numpy, Dr.Jit, Mitsuba or Dask and
+    no other part of pointillist (a command's -h and a plain render rely on it)."""
+    import subprocess
+    import sys
+
+    names = sorted(p.stem for p in (ROOT / "pointillist" / "core").glob("*.py") if p.stem != "__init__")
+    assert {"checks", "errors", "files", "signals", "terminal", "llvm", "digests"} <= set(names)
+    code = ("import sys; " + "; ".join(f"import pointillist.core.{n}" for n in names) + "; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'drjit', 'mitsuba', 'dask', "
+            "'distributed') or (m.startswith('pointillist') and not m.startswith('pointillist.core') "
+            "and m != 'pointillist')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
 
 
 def test_every_package_folder_is_listed_for_setuptools():
@@ -115,3 +132,32 @@ def test_wheel_has_one_top_level_package(tmp_path):
                      "pointillist/commands/render.py", "pointillist/compare/page/report.html.in",
                      *(f"pointillist/compare/page/{name}" for name in PAGE_SCRIPTS)):
         assert expected in names, expected
+
+
+def test_no_file_cites_the_project_s_issue_numbers():
+    """A reader of the repository cannot look up this project's issues: code, tests, docs and
+    benchmarks name what they refer to (the round, the goal, the defect), never an issue number.
+    Another project's issue stays citable with its name (``Dr.Jit issue 536``) or its address."""
+    import re
+    import subprocess
+
+    listed = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True)
+    if listed.returncode != 0:
+        pytest.skip("not a git checkout")
+    cited = re.compile(r"(?<![\w/#.-])[Ii]ssues? #?\d+")
+    foreign = re.compile(r"(Dr\.?Jit|drjit|Mitsuba|mitsuba|OpenEXR|numpy|Dask|github\.com)\S*\s*$")
+    found = []
+    for name in listed.stdout.split():
+        path = ROOT / name
+        if path.suffix not in {".py", ".md", ".rst", ".toml", ".js", ".in", ".ipynb", ".txt", ".cfg", ".sh", ""} \
+                or not path.is_file():
+            continue
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError:
+            continue
+        for number, line in enumerate(text.splitlines(), 1):
+            for match in cited.finditer(line):
+                if not foreign.search(line[:match.start()]):
+                    found.append(f"{name}:{number}: {line.strip()[:100]}")
+    assert found == []

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pointillist import llvm
+from pointillist.core import llvm
 
 ROOT = Path(__file__).resolve().parent.parent
 SYSTEM_LLVM15 = Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so")

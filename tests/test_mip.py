@@ -294,8 +294,9 @@ def test_bad_parameters_raise(mi):
     ("colormap", 3, TypeError, "colormap: expected a string, got int"),
     ("background", "dark", TypeError, "background: expected a number, got str"),
     ("background", math.nan, ValueError, "background: expected a finite number, got nan"),
-    ("spacing", "1,2", ValueError, "spacing: expected three positive numbers 'sx,sy,sz', got '1,2'"),
-    ("spacing", "1,-2,1", ValueError, "spacing: expected three positive numbers"),
+    ("spacing", "1,2", ValueError,
+     "spacing: expected 3 positive numbers 'sx,sy,sz' separated by commas or spaces, got '1,2'"),
+    ("spacing", "1,-2,1", ValueError, "spacing: expected 3 positive numbers"),
     ("spacing", 2.0, TypeError, "spacing: expected a string, got float"),
     ("filename", 3, TypeError, "filename: expected a string, got int"),
     ("to_world", "abc", TypeError, "to_world: expected a transform or a 4x4 matrix, got str"),
@@ -687,3 +688,28 @@ def test_frame_task_loads_the_chosen_frame(mi):
                              "options": options})
     expected, _ = project_volume(load_volume(path, frame=1), view="coronal", **options)
     np.testing.assert_array_equal(result["image"], expected)
+
+
+@pytest.mark.parametrize("text", ["1,2,3", "1 2 3", "1, 2 ,3", " 0.5\t0.5, 2 ", "1,,2", "1,2", "1,2,3,4", "0,1,1",
+                                  "nan,1,1", "1e39,1,1", "a,b,c", ""])
+def test_the_spacing_text_is_read_alike_by_the_integrator_and_the_command(mi, text, tmp_path):
+    """One rule for a spacing written as text: the ``mip`` integrator's ``spacing`` property and
+    ``pointillist mip --spacing`` accept the same texts, as the same numbers."""
+    import argparse
+
+    from pointillist.commands.mip import _spacing
+    from pointillist.plugins.integrators.mip import MIPIntegrator  # noqa: F401 - registers the plugin
+
+    volume = tmp_path / "v.npy"
+    np.save(volume, np.arange(8, dtype=np.float32).reshape(2, 2, 2))
+    try:
+        command = _spacing(text)
+    except argparse.ArgumentTypeError:
+        command = None
+    try:
+        integrator = mi.load_dict({"type": "mip", "filename": str(volume), "spacing": text})
+    except (ValueError, TypeError, RuntimeError):
+        integrator = None
+    assert (command is None) == (integrator is None), (command, integrator)
+    if command is not None:
+        assert command == (1.0, 2.0, 3.0) if "3" in text and "4" not in text else command == (0.5, 0.5, 2.0)

@@ -151,7 +151,7 @@ def test_bad_input_is_one_line_and_status_2(exr, tmp_path, capsys, args, message
 def test_step_arguments_are_checked_before_any_step_runs(exr, tmp_path, capsys, steps, message):
     # Before: "gamma:2,gamma=3" silently ran gamma 3; the others failed only after the
     # automatic tonemap:clip had printed its notice (two lines), naming private functions.
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.steps import parse_steps
 
     with pytest.raises(UsageError, match=re.escape(message)):

@@ -1,4 +1,4 @@
-"""Progressive rendering (issue 19): passes, Welford accumulation, the relMSE estimate, budgets,
+"""Progressive rendering: passes, Welford accumulation, the relMSE estimate, budgets,
 checkpoints, resume, interruption, and `pointillist render --time/--target-error`."""
 
 from __future__ import annotations
@@ -579,7 +579,7 @@ def test_budget_returns_0_exactly_when_it_names_a_reason(seconds, target, spp_bu
 def test_unreachable_target_and_all_nonfinite_images_are_said_up_front():
     """An error budget alone that the 1/spp law puts beyond 2^32 - 1 spp, or an image with no finite pixel,
     would run for ever: a UsageError as soon as the estimate says so. Bounded by time or spp: no error."""
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.progressive import Budget
 
     stats = _stats(passes=8, spp=8, pass_spp=1, seconds=0.1, pass_seconds=0.01, estimated_relmse=0.05,
@@ -609,7 +609,7 @@ def test_unreachable_target_and_all_nonfinite_images_are_said_up_front():
     ({"min_passes": 2}, ValueError, "min_passes: expected an integer >= 8, got 2"),
 ])
 def test_budget_rejects_bad_values(kwargs, error, message):
-    """Budget's arguments go through pointillist.checks: its messages, TypeError for a wrong type."""
+    """Budget's arguments go through pointillist.core.checks: its messages, TypeError for a wrong type."""
     from pointillist.progressive import Budget
 
     with pytest.raises(error, match="^" + re.escape(message) + "$"):
@@ -712,7 +712,7 @@ def test_cli_checkpoint_then_resume_equals_one_uninterrupted_render(tmp_path, cl
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
 def test_interrupt_writes_the_passes_done(tmp_path, mi, signum, status):
     """Ctrl-C / SIGTERM during a --time 60 render: a valid EXR of what was rendered, interrupted=1;
-    exit 130 for Ctrl-C and 143 for SIGTERM (issue 26: SIGTERM exited 130), with one line.
+    exit 130 for Ctrl-C and 143 for SIGTERM (SIGTERM exited 130), with one line.
 
     Waits (event, not time) for the first checkpoint, i.e. for passes to exist, then signals.
     """
@@ -774,7 +774,7 @@ def _nan_scene(tmp_path, every=False):
 
 
 def test_cli_target_error_with_nan_pixels_stops_and_says_so(tmp_path, cli, mi):
-    """Issue 26, defect 6: a NaN pixel made the estimate NaN and `--target-error` ran for ever in silence. The
+    """a NaN pixel made the estimate NaN and `--target-error` ran for ever in silence. The
     NaN pixels are now counted, left out of the estimate and reported (stderr, header, as before NaN in the image)."""
     out = tmp_path / "n.exr"
     proc = cli("render", _nan_scene(tmp_path), "-o", out, "--target-error", "0.05", "--seed", "2", timeout=240)
@@ -792,7 +792,7 @@ def test_cli_target_error_with_nan_pixels_stops_and_says_so(tmp_path, cli, mi):
     ("unreachable", "target error 1e-30 is out of reach: the estimated relMSE is"),
 ])
 def test_cli_target_error_that_would_run_for_ever_stops_with_one_line(tmp_path, cli, mi, case, message):
-    """Issue 26, defect 6: an image without a finite pixel, or `--target-error 1e-30` without an spp or time
+    """an image without a finite pixel, or `--target-error 1e-30` without an spp or time
     budget, ran without end and without a word. Now: exit 2, one line, nothing written."""
     out = tmp_path / "x.exr"
     args = [_nan_scene(tmp_path, every=True), "--target-error", "0.05"] if case == "all-nan" else \

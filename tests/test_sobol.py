@@ -231,7 +231,7 @@ def test_zsobol_rounds_to_powers_of_two_and_refuses_indices_beyond_32_bits(mi):
                 sampler.seed(0, 16 * spp)
     # pointillist refuses the render before any work (a UsageError: exit status 2 and one line); inside
     # mi.render the error comes wrapped in Mitsuba's
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.scene import attach_films, timed_render
 
     scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"}, "sensor": {"type": "perspective",

@@ -1,4 +1,4 @@
-"""Stiff scenes: the same image whatever the scene's scale or distance from the origin (issue 21).
+"""Stiff scenes: the same image whatever the scene's scale or distance from the origin.
 
 One small scene (a Phong sphere, a mirror sphere, a glass sphere on a diffuse floor, one point
 light, 80x80 at 4 spp, box filter, fixed seed) is scaled by 1e-6 .. 1e6 (camera, clip planes and
@@ -25,7 +25,7 @@ RES, SPP, SEED = 80, 4, 3
 SCALES = (1e-6, 1e-4, 1e4, 1e6)
 SHIFT = 1e3
 
-#: Goals of issue 21: fraction of pixels off by more than 1 %.
+#: Goal: fraction of pixels off by more than 1 %.
 GOAL_SCALED, GOAL_MOVED = 0.005, 0.02
 
 

@@ -210,7 +210,7 @@ def test_quantize_definition(levels, mode):
 
 
 def test_quantize_modes_differ_as_the_issue_says():
-    """Issue 17: at 4 levels, 42 of the 256 inputs get another level from the bins than the nearest
+    """at 4 levels, 42 of the 256 inputs get another level from the bins than the nearest
     one, by up to 63 (against at most 42.5 for the nearest level); the default is the nearest."""
     x = np.arange(256, dtype=np.float32).reshape(16, 16)
     nearest, bins = a(quantize(x, 4)), a(quantize(x, 4, mode="bins"))

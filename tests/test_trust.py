@@ -1,8 +1,8 @@
-"""Issue 26 (part A): no silent wrong answer, no lost input, no late failure.
+"""no silent wrong answer, no lost input, no late failure.
 
 One plan per command (pointillist/plan.py: every file it reads and writes, checked before any
 work; the inputs' contents key caches and checkpoints), one signal boundary
-(pointillist/signals.py, pointillist/console.py) and one split of a render into colour, alpha and
+(pointillist/core/signals.py, pointillist/console.py) and one split of a render into colour, alpha and
 AOV layers (pointillist/channels.py). Each test names the defect of the issue it guards.
 """
 
@@ -24,7 +24,7 @@ import pytest
 
 from conftest import ROOT, SCENES
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 OBJ = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
 
@@ -259,7 +259,7 @@ def test_an_output_inside_an_input_folder_is_refused(mi, tmp_path):
 
 def test_a_failed_write_names_the_target_never_the_temporary_file(tmp_path):
     """Defect 3: a checkpoint that could not be replaced named `.x.checkpoint.npz.abc.tmp.npz`."""
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     target = tmp_path / "x.checkpoint.npz"
     target.mkdir()
@@ -657,8 +657,8 @@ def test_signal_boundary_records_and_raises_only_at_safe_points(inherited):
     signals blocked gets them all the same."""
     code = textwrap.dedent("""
         import os, signal
-        from pointillist import signals
-        from pointillist.errors import Terminated
+        from pointillist.core import signals
+        from pointillist.core.errors import Terminated
         before = signal.getsignal(signal.SIGINT)
         with signals.boundary("pointillist test"):
             os.kill(os.getpid(), signal.SIGTERM)
@@ -695,7 +695,7 @@ def test_a_command_started_with_the_signals_blocked_still_ends_with_143(tmp_path
     assert len(stderr.strip().splitlines()) == 1 and "terminated" in stderr, stderr
 
 
-# -- every command, interrupted at 20 moments of its start (issue 26's "must hold")
+# -- every command, interrupted at 20 moments of its start (the "must hold" list)
 def _handled_by_pointillist(pid: int) -> bool:
     """Whether the process runs pointillist's first line yet: SIGTERM is then blocked (held) or
     caught (/proc/PID/status). Before it, the interpreter's own start-up has Python's defaults."""

@@ -174,7 +174,7 @@ def test_a_scene_file_naming_a_device_is_refused(cli, tmp_path):
 
 def test_films_beyond_one_tensor_or_the_memory_are_refused_before_the_render(cli, tmp_path):
     """A 30000 x 30000 film segfaulted (nothing printed); a 2147483647 x 1 film failed inside Mitsuba."""
-    from pointillist.checks import available_memory
+    from pointillist.core.checks import available_memory
 
     scene = FILTER_SCENE.format(rfilter="").replace('value="8"/><integer name="height" value="8"',
                                                     'value="$w"/><integer name="height" value="$h"').replace(
@@ -193,7 +193,7 @@ def test_an_exr_whose_display_window_needs_more_memory_than_there_is(tmp_path, c
     out-of-memory killer) in post and compare --reference."""
     import OpenEXR
 
-    from pointillist.checks import available_memory
+    from pointillist.core.checks import available_memory
     from pointillist.post import POST_COPIES
 
     side = int((available_memory() / 4 / POST_COPIES / 3) ** 0.5) + 1000
@@ -209,7 +209,7 @@ def test_an_exr_whose_display_window_needs_more_memory_than_there_is(tmp_path, c
 
 
 def test_memory_check_says_what_needs_how_much():
-    from pointillist.checks import available_memory, memory
+    from pointillist.core.checks import available_memory, memory
 
     free = available_memory()
     assert 0 < free < 2**63 - 1
@@ -425,7 +425,7 @@ def test_one_sigterm_during_a_long_kernel_ends_every_command_within_two_seconds(
     """Defect 7: one SIGTERM to a command whose kernel runs for minutes was held until the kernel
     ended. Now, if the command has not stopped by itself a second after the signal, it is stopped
     at once: exit 143 within 2 s of the signal, one line, no temporary file."""
-    from pointillist.signals import STOP_SECONDS
+    from pointillist.core.signals import STOP_SECONDS
 
     argv = _long_kernel_commands(tmp_path)[command]
     before = set(tmp_path.rglob("*"))
@@ -712,7 +712,7 @@ def test_inside_a_notebook_one_signal_never_ends_the_process(tmp_path):
 _STOPPED_IN_A_NEW_FOLDER = textwrap.dedent("""
     import os, signal, sys, time
     from pathlib import Path
-    from pointillist import signals
+    from pointillist.core import signals
     from pointillist.console import main
 
     def run():  # a write into folders made for it, stopped at once in the middle
@@ -734,7 +734,7 @@ def test_folders_made_for_a_write_cut_at_once_are_removed(tmp_path):
     stopped at once while its EXR was written, and left its new folder empty. Folders made for a
     write (``signals.new_folders``) are part of the write in flight: removed when it is cut, kept
     once it succeeded."""
-    from pointillist import signals
+    from pointillist.core import signals
 
     done = subprocess.run([sys.executable, "-c", _STOPPED_IN_A_NEW_FOLDER, str(tmp_path)], capture_output=True,
                           text=True, timeout=60, cwd=ROOT)

@@ -232,7 +232,7 @@ def test_far_and_tiny_scenes_have_no_acne(mi, transform):
 
     Self-intersection acne would speckle lit surfaces with self-shadowing. A lit floor on
     its own must render as before. With the sphere, whitted's offsets come from error
-    bounds of each hit (issue 21; tests/test_stiff.py has the full set of scales), so it
+    bounds of each hit (tests/test_stiff.py has the full set of scales), so it
     changes fewer pixels than Mitsuba's ``path``, whose ``(1 + max|p|) RayEpsilon`` offsets
     are 9e-5 at the scale of 1e-4 and 9 far from the origin (path at scale 1 renders this
     scene exactly as whitted does).

@@ -9,7 +9,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, UInt8
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor, is_uint8, opaque_scalar, to_uint8, uint8_array
 
 _MAX_LEVELS = 256

@@ -11,7 +11,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, Float64, UInt8, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, divmod_u32, eager_if_shared, is_uint8,
                                         opaque_scalar)
 from pointillist.imaging.wavefront import clip_intensity

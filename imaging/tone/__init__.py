@@ -37,7 +37,7 @@ Function                Domain                          Range                   
 "uint8 out": the float32 result rounded half to even and clipped to 0..255, as
 :func:`pointillist.imaging.io.to_8bit` writes it (so a table value 254.6 reads 255).
 
-Parameters are checked for the float32 computation (:func:`pointillist.checks.real`): every
+Parameters are checked for the float32 computation (:func:`pointillist.core.checks.real`): every
 real parameter must be finite in float32 (``|x| <= 3.4e38``, a value > 0 must stay > 0 there),
 and so must what is derived from it: gamma's scale 1 / (a max_value), the stretch's slopes,
 (levels - 1) / max_value and max_value (levels - 1); a ValueError names the parameter.

@@ -8,14 +8,14 @@ from typing import Any, Callable
 import drjit as dr
 from drjit.llvm import Float, UInt8, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, is_uint8, replace_non_finite, to_uint8,
                                         uint8_array, warn_non_finite)
 
 # --------------------------------------------------------------------------- argument checks
 
 def _positive(value: Any, name: str) -> float:
-    """A real > 0 that float32 holds (:func:`pointillist.checks.real`)."""
+    """A real > 0 that float32 holds (:func:`pointillist.core.checks.real`)."""
     return checks.real(value, name, low=0.0, low_open=True)
 
 

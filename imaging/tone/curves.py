@@ -8,7 +8,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Float, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar
 from pointillist.imaging.tone._shared import (_done, _finish, _levels, _look_up_bytes, _pointwise, _positive, _sanitize,
                                               _u8_indices, _white)

@@ -9,7 +9,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, UInt8, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared, is_uint8,
                                         opaque_scalar, to_uint8, uint8_array)
 from pointillist.imaging.colour import hsv_from_rgb_values, rgb_from_hsv_values

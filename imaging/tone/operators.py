@@ -8,7 +8,7 @@ import drjit as dr
 import numpy as np
 from drjit.llvm import Array3f, Float, UInt32
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_encode_values
 from pointillist.imaging.tone._shared import _finish

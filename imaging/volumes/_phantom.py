@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 #: Voxels per slab when the phantom is evaluated (bounds its temporary memory).
 _PHANTOM_SLAB_VOXELS = 8 << 20

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pointillist import checks
+from pointillist.core import checks
 from pointillist.imaging.volumes._model import Volume
 
 

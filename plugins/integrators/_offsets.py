@@ -44,7 +44,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from pointillist import checks
+from pointillist.core import checks
 
 __all__ = ["ERROR_ULPS", "DEFAULT_ULPS", "SHADOW_ULPS", "UNIT_ROUNDOFF", "gamma", "magnitude",
            "shape_offset_scale", "ErrorBounds"]

@@ -58,10 +58,12 @@ class _RangeRender(NamedTuple):
 def srgb_display(value, exposure: float = 0.0, srgb: bool = True):
     """Display value 0..255 of a linear colour: ``255 encode(clip(2^exposure value, 0, 1))``.
 
-    The same mapping as ``imaging.io.to_8bit`` (and so the PNG of ``pointillist
-    render``) before rounding; ``encode`` is the sRGB transfer function
-    (:func:`imaging.colour.srgb_encode_values`), or the identity with ``srgb=False``.
-    Works on Python floats and Dr.Jit arrays.
+    ``encode`` is the sRGB transfer function (:func:`imaging.colour.srgb_encode_values`, the
+    one the PNG of ``pointillist render`` goes through in :func:`imaging.io.to_8bit`), or the
+    identity with ``srgb=False``. Works on Python floats and Dr.Jit arrays; in the kernel it
+    computes in float32, so rounded to 8 bits it gives the PNG's byte except for values within
+    float32 rounding of a half step (1 input in about 4000 near the boundaries, never more
+    than 1 apart).
     """
     from pointillist.imaging.colour import srgb_encode_values
 

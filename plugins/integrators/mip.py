@@ -8,6 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from pointillist.core import checks
 from pointillist.imaging.orientation import inverse_directions
 from pointillist.imaging.volumes import Volume, load_volume, volume_texture
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
@@ -29,17 +30,6 @@ TILE = 4
 #: The most samples one ray may take (the box's diagonal over the step): a smaller step, or a
 #: spacing so anisotropic that the step (in voxels of the smallest spacing) is that fine, is refused.
 MAX_RAY_SAMPLES = 2**20
-
-
-def _parse_spacing(text: str) -> list[float]:
-    """The ``spacing`` property ``"sx,sy,sz"`` (commas or spaces) as three positive finite floats."""
-    try:
-        spacing = [float(s) for s in text.replace(",", " ").split()]
-    except ValueError:
-        spacing = []
-    if len(spacing) != 3 or not all(math.isfinite(s) and s > 0 for s in spacing):
-        raise ValueError(f"spacing: expected three positive numbers 'sx,sy,sz', got {text!r}")
-    return spacing
 
 
 class MIPIntegrator(mi.SamplingIntegrator):
@@ -157,7 +147,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
         #: Which algorithm the last projection used: "columns", "bricks" or "march".
         self.last_path = None
         self.to_world = transform_property(props, "to_world")
-        spacing = _parse_spacing(string_property(props, "spacing", "")) if "spacing" in props else None
+        spacing = list(checks.spacing(string_property(props, "spacing", ""))) if "spacing" in props else None
         self.volume: Volume | None = None
         self._tex = None
         filename = string_property(props, "filename", "")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from pointillist.checks import UINT32_MAX
+from pointillist.core.checks import UINT32_MAX
 from pointillist.plugins.integrators._offsets import ErrorBounds
 from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 

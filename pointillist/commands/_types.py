@@ -1,13 +1,14 @@
-"""argparse ``type=`` converters shared by the sub-commands (a bad value: exit 2, one line)."""
+"""argparse ``type=`` converters and option groups shared by the sub-commands (a bad value: exit 2,
+one line)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-from pointillist.checks import UINT32_MAX
+from pointillist.core.checks import UINT32_MAX
 
-__all__ = ["positive_int", "non_negative_int", "positive_float", "finite_float"]
+__all__ = ["positive_int", "non_negative_int", "positive_float", "finite_float", "add_cluster_options"]
 
 
 def _parse(text: str, kind: type, expected: str):
@@ -49,3 +50,17 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
+
+
+def add_cluster_options(container, *, work: str, shared: str) -> None:
+    """The Dask options every distributed command has, declared once: ``--workers N`` (a local
+    cluster of N worker processes) or ``--scheduler ADDRESS`` (an existing cluster), not both.
+
+    ``container``: the parser or argument group they join; ``work``: what the cluster does
+    ("render the tiles"); ``shared``: what the workers of an existing cluster must share.
+    """
+    cluster = container.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=positive_int, metavar="N",
+                         help=f"{work} on a local Dask cluster of N worker processes")
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help=f"{work} on an existing Dask cluster (e.g. tcp://host:8786); {shared}")

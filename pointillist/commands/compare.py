@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import argparse
 
-from pointillist.checks import UINT32_MAX
-from pointillist.commands._types import positive_int
+from pointillist.core.checks import UINT32_MAX
+from pointillist.commands._types import add_cluster_options, positive_int
 
 NAME = "compare"
 HELP = "compare samplers: error vs time and spp against a reference"
@@ -60,13 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="no progress (default: a bar on a terminal, else one line per finished render)")
     parser.add_argument("--no-report", action="store_true",
                         help="do not write DIR/report.html (the interactive page of renders and error maps)")
-    cluster = parser.add_mutually_exclusive_group()
-    cluster.add_argument("--workers", type=positive_int, metavar="N",
-                         help="render on a local Dask cluster of N worker processes, one task per render, "
-                              "timed on the worker (default: serial, in process)")
-    cluster.add_argument("--scheduler", metavar="ADDRESS",
-                         help="render on an existing Dask cluster (e.g. tcp://host:8786); the scene and "
-                              "--out must be on a file system the workers share")
+    add_cluster_options(parser, work="render each (sampler, spp, seed) as a task timed on its worker (default: "
+                        "in process)", shared="the scene and --out must be on a file system the workers share")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene parameter ($KEY in the XML); repeatable")
 

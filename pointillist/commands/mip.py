@@ -39,7 +39,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pointillist.commands._types import finite_float, non_negative_int, positive_float, positive_int
+from pointillist.commands._types import (add_cluster_options, finite_float, non_negative_int, positive_float,
+                                         positive_int)
+from pointillist.core import checks
 
 NAME = "mip"
 HELP = "maximum intensity projection of a volume (CT/MRI) to PNG or EXR"
@@ -61,14 +63,11 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _spacing(text: str) -> tuple[float, float, float]:
-    """argparse type: ``sx,sy,sz`` numbers (checked further by the volume reader)."""
+    """argparse type: the voxel spacing as the ``mip`` integrator reads it (:func:`checks.spacing`)."""
     try:
-        values = tuple(float(s) for s in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected sx,sy,sz numbers, got {text!r}") from None
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected three numbers sx,sy,sz, got {text!r}")
-    return values
+        return checks.spacing(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix("spacing: ")) from None
 
 
 class _VolumeArgument(argparse.Action):
@@ -129,12 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the DICOM series to read from a folder holding several (UID or index in the listing)")
     parser.add_argument("--turntable", type=positive_int, metavar="N",
                         help="write N frames turning about z (OUT_000.png ...; N <= 3600) and OUT.gif")
-    cluster = parser.add_mutually_exclusive_group()
-    cluster.add_argument("--workers", type=positive_int, metavar="N",
-                         help="project the frames as tasks on a local Dask cluster of N worker processes")
-    cluster.add_argument("--scheduler", metavar="ADDRESS",
-                         help="project the frames on an existing Dask cluster (e.g. tcp://host:8786); "
-                              "the workers read VOLUME by the same path")
+    add_cluster_options(parser, work="project the frames as tasks", shared="the workers read VOLUME by the same path")
 
 
 

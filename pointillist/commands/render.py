@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pointillist.commands._types import non_negative_int, positive_float, positive_int
+from pointillist.commands._types import add_cluster_options, non_negative_int, positive_float, positive_int
 
 NAME = "render"
 HELP = "render a scene XML to EXR (+ PNG preview)"
@@ -50,10 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     dist.add_argument("--tiles", type=tiles_arg, metavar="RxC",
                       help="split the film into R x C crop-window tiles, one task each, tile i seeded "
                            "(seed*R*C + i) mod 2^32 (default: one untiled render)")
-    dist.add_argument("--workers", type=positive_int, metavar="N",
-                      help="render the tiles on a local Dask cluster of N worker processes")
-    dist.add_argument("--scheduler", metavar="ADDRESS",
-                      help="render the tiles on an existing Dask cluster (e.g. tcp://host:8786)")
+    add_cluster_options(dist, work="render the tiles", shared="the workers read the scene by the same path")
     dist.add_argument("--cache", metavar="DIR",
                       help="keep finished tiles in DIR; a rerun renders only the missing ones")
 
@@ -95,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
               f"({stats.estimate_state}), stopped by {result.stop}"
               + (f" (resumed from {result.resumed_from} passes)" if result.resumed_from else ""))
         if result.interrupted:  # the passes done are written, but it is not done: 130 (Ctrl-C) / 143 (SIGTERM)
-            from pointillist import signals
+            from pointillist.core import signals
 
             print(f"pointillist render: {signals.message(result.signum)}", file=sys.stderr)
             return signals.status(result.signum) if result.signum is not None else 130

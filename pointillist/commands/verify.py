@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``pointillist verify`` with the parsed ``args``; returns the exit status."""
     from pointillist.differential import STEPS, verify_scenes
-    from pointillist.errors import UsageError
+    from pointillist.core.errors import UsageError
     from pointillist.scene import parse_defines
 
     steps = STEPS if args.only is None else tuple(s.strip() for s in args.only.split(",") if s.strip())

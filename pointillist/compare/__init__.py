@@ -31,13 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pointillist import signals
+from pointillist.core import signals
 from pointillist.compare.methods import resolve_methods, sweep_parameter
 from pointillist.compare.records import RenderRecord, SceneFacts, Task, record_json
 from pointillist.compare.sweep import (REFERENCE_SAMPLER, REFERENCE_SEED, prerender_sweep, render_one,
                                        render_reference, run_sweep)
-from pointillist.errors import UsageError
-from pointillist.files import input_file
+from pointillist.core.errors import UsageError
+from pointillist.core.files import input_file
 
 __all__ = ["compare_scene", "CompareResult", "sweep_tasks", "DEFAULT_SPP", "DEFAULT_METHODS", "Task", "RenderRecord",
            "render_one", "run_sweep", "prerender_sweep", "REFERENCE_SAMPLER", "REFERENCE_SEED", "MAX_SEEDS"]
@@ -76,7 +76,7 @@ class CompareResult:
 def sweep_tasks(methods: Sequence[str] | str, spp: Sequence[int], seeds: int) -> list[Task]:
     """The tasks of a sweep: every method at every sweep value (``spp`` for samplers, the
     method's own values otherwise) and seed ``0..seeds-1`` (at most :data:`MAX_SEEDS`)."""
-    from pointillist import checks
+    from pointillist.core import checks
 
     seeds = checks.integer(seeds, "--seeds", low=1, high=MAX_SEEDS)
     tasks = []

@@ -45,7 +45,7 @@ __all__ = ["REPORT_NAME", "ReportPage", "write_html_report", "DEFAULT_MAX_BYTES"
 #: The page's file name in the comparison folder.
 REPORT_NAME = "report.html"
 
-#: Size budget of report.html in bytes (issue 20: a default sweep's page stays under about 30 MB).
+#: Size budget of report.html in bytes (a default sweep's page stays under about 30 MB).
 DEFAULT_MAX_BYTES = 30_000_000
 
 #: Decades of the relMSE colour scale below its top (the 99.5th percentile over the shown maps).
@@ -215,7 +215,7 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
     ValueError
         ``records`` empty, ``max_bytes`` not positive, or a render of another size than the reference.
     """
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
     from pointillist.imaging.io import read_exr
     from pointillist.imaging.metrics import as_rgb, error_maps, error_spectrum
     from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, NYQUIST

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = [
     "Method", "METHODS", "MITSUBA_SAMPLERS", "SAMPLER_ALIASES", "ADAPTIVE_THRESHOLDS", "ADAPTIVE_DEPTHS",

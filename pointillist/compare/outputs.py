@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pointillist.digests import file_digest, json_key
+from pointillist.core.digests import file_digest, json_key
 
 __all__ = ["MANIFEST_NAME", "manifest_path", "outputs_key", "unchanged", "remember"]
 

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import signals
+from pointillist.core import signals
 from pointillist.compare.methods import sweep_parameter
-from pointillist.digests import json_key
+from pointillist.core.digests import json_key
 
 __all__ = ["Task", "RenderRecord", "task_paths", "load_record", "record_json", "write_json", "SCORES_VERSION",
            "scores_key", "image_digest", "maps_path", "MAP_NAMES", "load_scores", "save_scores", "SceneFacts",
@@ -152,7 +152,7 @@ def record_json(record: RenderRecord) -> dict[str, Any]:
 
 def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as indented JSON into ``path``, atomically."""
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
 
@@ -214,7 +214,7 @@ def load_scores(path: Path, key: str, *, maps: bool) -> dict[str, Any] | None:
 
 def save_scores(path: Path, key: str, scores: dict[str, Any], *, maps: bool) -> None:
     """Store a render's error spectrum (and with ``maps`` its :data:`MAP_NAMES` maps) for ``key`` at ``path``."""
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     spectrum = scores["spectrum"]
     arrays = dict(scores_key=np.array(key), spectrum_frequency=spectrum.frequency, spectrum_power=spectrum.power,

@@ -55,7 +55,7 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     :func:`pointillist.compare.sweep.run_sweep` collects them: the spectrum plot shows their mean
     over seeds, one panel per spp.
     """
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     paths = report_paths(out_dir)
     if spectra is None:
@@ -211,7 +211,7 @@ def mean_spectra(records: Sequence[Any], spectra: Mapping[str, Any]) -> dict[tup
 
 def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path) -> None:
     """Radially averaged power spectra of the error images: a panel per spp, a curve per method."""
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
     from pointillist.imaging.spectrum import LOW_FREQUENCY_CUTOFF, log_binned
 
     import matplotlib
@@ -261,7 +261,7 @@ def _plot_spectra(records: Sequence[Any], spectra: Mapping[str, Any], path: Path
     save_figure(fig, path)
 
 def _plot(rows, fitted, x_name: str, x_label: str, slope_name: str, path: Path) -> None:
-    from pointillist.files import save_figure
+    from pointillist.core.files import save_figure
 
     import matplotlib
 

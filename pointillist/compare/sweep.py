@@ -22,13 +22,13 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import signals
+from pointillist.core import signals
 from pointillist.compare.methods import METHODS, load_configured_scene, scene_key
 from pointillist.compare.records import (MAP_NAMES, RenderRecord, Task, image_digest, load_record, load_scores,
                                          maps_path, record_json, save_scores, scores_key, task_paths, write_json)
-from pointillist.digests import json_key
+from pointillist.core.digests import json_key
 from pointillist.distributed import DEFAULT_RETRIES, run_tasks, setup_process
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["REFERENCE_SAMPLER", "REFERENCE_SEED", "render_one", "render_reference", "run_sweep", "compare_task",
            "prerender_sweep"]
@@ -179,7 +179,7 @@ def _render_tasks(scene_path: str, tasks: Sequence[Task], *, params: dict[str, s
                   log: Callable[[str], None] | None) -> list[RenderRecord]:
     """The sweep's first step: every task's record, rendered or found finished, with its progress."""
     from pointillist.compare.tables import format_time
-    from pointillist.terminal import draws_progress
+    from pointillist.core.terminal import draws_progress
 
     records = []
     terminal = draws_progress(progress)

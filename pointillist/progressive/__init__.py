@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks, signals
+from pointillist.core import checks, signals
 from pointillist.progressive.budget import FIRST_PASS_SAMPLES, STOP_REASONS, TARGET_PASS_SECONDS, Budget
 from pointillist.progressive.checkpoint import (CHECKPOINT_VERSION, checkpoint_path, load_checkpoint,
                                                 save_checkpoint, scene_fingerprint)
@@ -43,7 +43,7 @@ from pointillist.progressive.report import progress_paths, render_warnings, writ
 from pointillist.progressive.seeds import pass_seed, tea32
 from pointillist.progressive.stats import HISTORY_COLUMNS, PassStats, history_row
 from pointillist.scene import RenderTiming, scene_info, timed_render
-from pointillist.terminal import progress_bar
+from pointillist.core.terminal import progress_bar
 
 __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "HISTORY_COLUMNS",
            "RELIABLE_VARIANCE", "FIREFLY_RANGE", "FLOORED_SHARE", "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed",
@@ -232,7 +232,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         The checkpoint (``OUT.checkpoint.npz``); needed with ``checkpoint_seconds`` or ``resume``.
     resume : bool
         Continue from ``checkpoint_file`` (same scene file, ``-D`` values, seed, film, integrator
-        and sampler, else :class:`~pointillist.errors.UsageError`); the budget counts the
+        and sampler, else :class:`~pointillist.core.errors.UsageError`); the budget counts the
         resumed passes too.
     progress : bool
         Draw a tqdm bar on stderr (only when stderr is a terminal; it is cleared at the end).

@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from pointillist import checks
-from pointillist.errors import UsageError
+from pointillist.core import checks
+from pointillist.core.errors import UsageError
 from pointillist.progressive.estimate import MIN_PASSES
 from pointillist.progressive.stats import PassStats
 
@@ -53,7 +53,7 @@ class Budget:
         than its share is under-counted) and, while the estimate is trusted, no more than the
         1/spp law says is still needed (rounded down to a power of two), so the render stops
         close to the target. Without ``seconds`` and ``spp``, a target that a trusted estimate
-        puts beyond 2^32 - 1 spp raises a :class:`~pointillist.errors.UsageError` (it would run
+        puts beyond 2^32 - 1 spp raises a :class:`~pointillist.core.errors.UsageError` (it would run
         for ever), and so does an image whose every pixel is NaN or inf (no estimate).
     spp : int, optional
         Stop at this many samples per pixel (the last pass is cut to land on it exactly).

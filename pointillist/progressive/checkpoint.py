@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.checks import UINT32_MAX
-from pointillist.errors import UsageError
+from pointillist.core.checks import UINT32_MAX
+from pointillist.core.errors import UsageError
 from pointillist.progressive.estimate import Accumulator
 from pointillist.progressive.stats import HISTORY_COLUMNS, PassStats
 from pointillist.scene import scene_info
@@ -77,7 +77,7 @@ def save_checkpoint(path: Path, acc: Accumulator, stats: PassStats, history: lis
     (:data:`~pointillist.progressive.stats.HISTORY_COLUMNS`), the render's ``identity``
     (:func:`scene_fingerprint`), :data:`CHECKPOINT_VERSION` and the :func:`checksum` of it all;
     :func:`load_checkpoint` reads it back."""
-    from pointillist.files import atomic_write
+    from pointillist.core.files import atomic_write
 
     arrays = dict(acc.to_numpy(), history=np.asarray(history, np.float64).reshape(-1, len(HISTORY_COLUMNS)),
                   stats=np.array(json.dumps(asdict(stats))), identity=np.array(json.dumps(identity)),

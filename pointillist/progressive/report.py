@@ -29,7 +29,7 @@ def write_progress(out: str | Path, history: list, *, png: bool = False, inputs=
     untrusted ones hollow, with a line of slope -1 (error proportional to 1/t, the Monte Carlo
     rate) through the last estimate. Returns the paths written.
     """
-    from pointillist.files import atomic_write, check_output_path, save_figure
+    from pointillist.core.files import atomic_write, check_output_path, save_figure
 
     csv_path, png_path = progress_paths(out)
     check_output_path(csv_path, inputs)

@@ -8,7 +8,7 @@ with (``mi.sample_tea_32``), on Python ints.
 
 from __future__ import annotations
 
-from pointillist.checks import UINT32_MAX
+from pointillist.core.checks import UINT32_MAX
 
 __all__ = ["tea32", "pass_seed"]
 

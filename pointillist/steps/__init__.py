@@ -29,7 +29,7 @@ import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from pointillist.errors import UsageError
+from pointillist.core.errors import UsageError
 
 __all__ = ["Step", "STEPS", "step", "steps", "parse_steps", "parse_value"]
 

@@ -12,7 +12,7 @@ import re
 import numpy as np
 
 from pointillist.imaging import colour, tone
-from pointillist.files import input_file
+from pointillist.core.files import input_file
 from pointillist.steps import step
 
 

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from pointillist import checks
-from pointillist.errors import one_line
+from pointillist.core import checks
+from pointillist.core.errors import one_line
 from pointillist.imaging.orientation import LPS_FROM_RAS
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _pick_frame, _warn
 from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from pointillist.errors import one_line
+from pointillist.core.errors import one_line
 from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
 from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 

@@ -63,7 +63,7 @@ def write_vol(path: str | os.PathLike, volume: Volume | np.ndarray, *, spacing: 
         volume = Volume(volume.data, spacing)
     nx, ny, nz = volume.shape_xyz
     ex, ey, ez = volume.extent
-    from pointillist.files import atomic_write, check_output_path
+    from pointillist.core.files import atomic_write, check_output_path
 
     path = check_output_path(path, name="path")
 

@@ -22,7 +22,7 @@ def one_line(text: object, limit: int = 400) -> str:
 
     Examples
     --------
-    >>> from pointillist.errors import one_line
+    >>> from pointillist.core.errors import one_line
     >>> one_line("Unable to decompress:\\n    gdcm - requires gdcm\\n    pylibjpeg - requires pylibjpeg\\n")
     'Unable to decompress: gdcm - requires gdcm pylibjpeg - requires pylibjpeg'
     """

@@ -18,7 +18,7 @@ works. This module therefore
 
 When none is usable, :func:`ensure_llvm` raises :class:`LLVMNotFoundError`
 whose message names the Debian package to install. The module uses only the
-standard library so that ``python3 pointillist/llvm.py`` can run before the
+standard library so that ``python3 pointillist/core/llvm.py`` can run before the
 project's virtual environment exists (the Makefile uses it to decide whether to
 ``apt-get install libllvm19``).
 """

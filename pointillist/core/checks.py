@@ -24,12 +24,14 @@ Function            Accepts
 ``choice``          one of a fixed set of values (of the same type)
 ``uint32``          int in 0..2^32-1 (Mitsuba's and Dr.Jit's 32-bit counters)
 ``seed``            a :func:`uint32` named ``seed``
+``numbers_text``    several reals written in one string: ``"1,2,3"``, ``"1 2 3"``, ``"1, 2, 3"``
+``spacing``         a volume's voxel spacing written as text: three positive numbers
 ``exr_attribute``   an EXR header attribute: a name not OpenEXR's own, an int, float or str
 ==================  ===================================================================
 
 Examples
 --------
->>> from pointillist import checks
+>>> from pointillist.core import checks
 >>> checks.real(2.5, "gamma", low=0, low_open=True)
 2.5
 >>> checks.real(4e38, "hue")
@@ -59,7 +61,8 @@ if TYPE_CHECKING:  # numpy is imported only by the checks of arrays: a command's
     import numpy as np
 
 __all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
-           "choice", "uint32", "seed", "available_memory", "memory", "EXR_RESERVED", "EXR_INT_RANGE", "exr_attribute"]
+           "choice", "uint32", "seed", "available_memory", "memory", "EXR_RESERVED", "EXR_INT_RANGE", "exr_attribute",
+           "numbers_text", "spacing"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = math.ldexp(2.0 - 2.0**-23, 127)
@@ -131,7 +134,7 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
 
     Examples
     --------
-    >>> from pointillist.checks import real
+    >>> from pointillist.core.checks import real
     >>> real(3, "level")
     3.0
     >>> real(float("nan"), "level")
@@ -173,7 +176,7 @@ def real_array(values: Any, name: str) -> np.ndarray:
 
     Examples
     --------
-    >>> from pointillist.checks import real_array
+    >>> from pointillist.core.checks import real_array
     >>> real_array([[1, 2], [3, 4]], "kernel").dtype
     dtype('float64')
     >>> real_array([1.0, 1e39], "table")
@@ -212,7 +215,7 @@ def float32_finite(value: float, name: str, quantity: str) -> float:
 
     Examples
     --------
-    >>> from pointillist.checks import float32_finite
+    >>> from pointillist.core.checks import float32_finite
     >>> float32_finite(255 / 1e-40, "r2", "the slope (s2 - s1) / (r2 - r1)")
     Traceback (most recent call last):
     ...
@@ -228,7 +231,7 @@ def integer(value: Any, name: str, *, low: int | None = None, high: int | None =
 
     Examples
     --------
-    >>> from pointillist.checks import integer
+    >>> from pointillist.core.checks import integer
     >>> integer(4, "levels", low=2, high=256)
     4
     >>> integer(2.0, "levels")
@@ -252,7 +255,7 @@ def integers(value: Any, name: str, count: int | None = None, *, low: int | None
 
     Examples
     --------
-    >>> from pointillist.checks import integers
+    >>> from pointillist.core.checks import integers
     >>> integers((480, 640), "size", 2, low=1)
     (480, 640)
     >>> integers("64", "size", 2)
@@ -272,7 +275,7 @@ def boolean(value: Any, name: str) -> bool:
 
     Examples
     --------
-    >>> from pointillist.checks import boolean
+    >>> from pointillist.core.checks import boolean
     >>> boolean(True, "clamp")
     True
     >>> boolean(1, "clamp")
@@ -293,7 +296,7 @@ def choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
 
     Examples
     --------
-    >>> from pointillist.checks import choice
+    >>> from pointillist.core.checks import choice
     >>> choice("bicubic", "method", ("nearest", "bilinear", "bicubic"))
     'bicubic'
     >>> choice("lanczos", "method", ("nearest", "bilinear", "bicubic"))
@@ -321,7 +324,7 @@ def uint32(value: Any, name: str) -> int:
 
     Examples
     --------
-    >>> from pointillist.checks import uint32
+    >>> from pointillist.core.checks import uint32
     >>> uint32(2**32 - 1, "spp")
     4294967295
     >>> uint32(2**32, "spp")
@@ -337,7 +340,7 @@ def seed(value: Any, name: str = "seed") -> int:
 
     Examples
     --------
-    >>> from pointillist.checks import seed
+    >>> from pointillist.core.checks import seed
     >>> seed(7)
     7
     """
@@ -369,7 +372,7 @@ def memory(needed: int, what: str) -> None:
 
     Examples
     --------
-    >>> from pointillist.checks import memory
+    >>> from pointillist.core.checks import memory
     >>> memory(1024, "a small image")
     >>> try:
     ...     memory(2**62, "the film")
@@ -426,3 +429,52 @@ def exr_attribute(key: Any, value: Any) -> int | float | str:
     if isinstance(value, numbers.Real):
         return float(value)
     raise TypeError(f"metadata[{key!r}]: expected int, float or str, got {type(value).__name__}")
+
+
+def numbers_text(text: Any, name: str, count: int, *, what: str = "numbers", low: float | None = None,
+                 low_open: bool = False) -> tuple[float, ...]:
+    """``count`` reals written in one string, separated by commas and/or spaces (Mitsuba's way
+    of writing a vector: ``"1,2,3"``, ``"1 2 3"``, ``"1, 2, 3"``), each checked as :func:`real`.
+
+    ``what`` names the values in the message (``"positive numbers 'sx,sy,sz'"``).
+
+    Examples
+    --------
+    >>> numbers_text("0.5, 0.5 2", "spacing", 3, low=0, low_open=True)
+    (0.5, 0.5, 2.0)
+    >>> numbers_text("1,,2", "spacing", 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: spacing: expected 3 numbers separated by commas or spaces, got '1,,2'
+    """
+    import re
+
+    if not isinstance(text, str):
+        raise TypeError(f"{name}: expected a string of {count} {what}, got {_got(text)}")
+    parts = re.split(r"\s*,\s*|\s+", text.strip())
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) != count:
+        raise ValueError(f"{name}: expected {count} {what} separated by commas or spaces, got {text!r}")
+    try:
+        return tuple(real(value, name, low=low, low_open=low_open) for value in values)
+    except ValueError:
+        raise ValueError(f"{name}: expected {count} {what}, got {text!r}") from None
+
+
+def spacing(text: Any, name: str = "spacing") -> tuple[float, float, float]:
+    """A volume's voxel spacing written as text (the ``mip`` integrator's ``spacing`` property and
+    ``pointillist mip --spacing``): three positive numbers ``sx,sy,sz`` (commas and/or spaces).
+
+    Examples
+    --------
+    >>> spacing("0.5,0.5,2")
+    (0.5, 0.5, 2.0)
+    >>> spacing("1,-2,1")
+    Traceback (most recent call last):
+    ...
+    ValueError: spacing: expected 3 positive numbers 'sx,sy,sz', got '1,-2,1'
+    """
+    return numbers_text(text, name, 3, what="positive numbers 'sx,sy,sz'", low=0.0, low_open=True)  # type: ignore

@@ -8,7 +8,7 @@ console script does) the handlers only record the signal:
 
 * **first signal**: a request to stop. Work stops at the next *safe point*, a place in plain Python
   where unwinding is clean: :func:`check` raises :class:`KeyboardInterrupt` (SIGINT) or
-  :class:`~pointillist.errors.Terminated` (SIGTERM) there, and the command line turns it into
+  :class:`~pointillist.core.errors.Terminated` (SIGTERM) there, and the command line turns it into
   exit status 130 / 143 and one line on stderr. Loops that can keep their work (the passes of a
   progressive render) ask :func:`received` instead and stop after the step in flight.
 * **stop now**: a second signal, or :data:`GRACE_SECONDS` after the first when the command has not
@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from pointillist.errors import Terminated
+from pointillist.core.errors import Terminated
 
 __all__ = ["SIGNALS", "STATUS", "install", "uninstall", "installed", "boundary", "set_command", "received",
            "check", "status", "message", "deferred", "on_abandon", "temporary_file", "new_folders", "forget_file",

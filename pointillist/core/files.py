@@ -16,7 +16,7 @@ Examples
 --------
 >>> import os, tempfile
 >>> from pathlib import Path
->>> from pointillist.files import atomic_write, check_output_path
+>>> from pointillist.core.files import atomic_write, check_output_path
 >>> folder = Path(tempfile.mkdtemp())
 >>> atomic_write(folder / "log.csv", lambda tmp: Path(tmp).write_text("pass,spp\\n"))
 >>> sorted(os.listdir(folder))
@@ -24,7 +24,7 @@ Examples
 >>> check_output_path(folder / "log.csv", inputs=[folder / "log.csv"], name="--output")
 Traceback (most recent call last):
 ...
-pointillist.errors.UsageError: --output: refusing to overwrite the input file .../log.csv
+pointillist.core.errors.UsageError: --output: refusing to overwrite the input file .../log.csv
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from pointillist import signals
-from pointillist.errors import UsageError
+from pointillist.core import signals
+from pointillist.core.errors import UsageError
 
 __all__ = ["file_id", "mark_input", "input_file", "unwritable", "existing_ancestor", "check_output_path",
            "atomic_write", "save_figure"]
@@ -68,11 +68,11 @@ def input_file(path: str | os.PathLike, name: str = "path") -> Path:
 
     Examples
     --------
-    >>> from pointillist.files import input_file
+    >>> from pointillist.core.files import input_file
     >>> input_file("/", "--reference")
     Traceback (most recent call last):
     ...
-    pointillist.errors.UsageError: --reference: / is a folder, expected a file
+    pointillist.core.errors.UsageError: --reference: / is a folder, expected a file
     """
     text = os.fspath(path)
     if not text:
@@ -127,7 +127,7 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLik
 
     Raises
     ------
-    pointillist.errors.UsageError
+    pointillist.core.errors.UsageError
         (a ``ValueError``) naming ``name``: ``path`` is a folder, exists and is not a regular file,
         is an input or lies in an input folder, its name is too long for the temporary file written
         first (the file system's limit, 255 bytes on most, less 14 and the suffix), its folder is

@@ -8,7 +8,7 @@ turntables) decides through :func:`draws_progress` and makes its bar with :func:
 
 Examples
 --------
->>> from pointillist.terminal import draws_progress
+>>> from pointillist.core.terminal import draws_progress
 >>> draws_progress(False)
 False
 """
@@ -41,7 +41,7 @@ def progress_bar(iterable: Iterable | None = None, *, progress: bool, **options:
 
     Examples
     --------
-    >>> from pointillist.terminal import progress_bar
+    >>> from pointillist.core.terminal import progress_bar
     >>> with progress_bar(range(3), progress=False, desc="frames") as bar:
     ...     total = sum(bar)
     >>> total, bar.disable
