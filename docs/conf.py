@@ -29,6 +29,7 @@ section, or when a page cannot be reached from the index (see ``_ext/pointillist
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -76,6 +77,9 @@ html_last_updated_fmt = None
 html_copy_source = False
 
 # ------------------------------------------------------------------ API reference
+# The generated pages are made anew at each build: a page left from a module that was renamed or
+# moved would name a module that no longer imports.
+shutil.rmtree(Path(__file__).resolve().parent / "api" / "generated", ignore_errors=True)
 autosummary_generate = True
 autosummary_ignore_module_all = False  # a module's __all__ says what is public
 autosummary_imported_members = False
