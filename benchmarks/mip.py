@@ -106,7 +106,7 @@ def part_a(n: int, repeats: int) -> dict:
                 integrator.set_volume(volume)
                 if skip:
                     t = time.perf_counter()
-                    integrator.brick_bounds()
+                    integrator.bricks.bounds()
                     out["bricks_build_s"] = time.perf_counter() - t
                 t = time.perf_counter()
                 image, _ = _ours(volume, integrator, **view)
@@ -157,13 +157,13 @@ def part_b_child(shape: tuple[int, int, int]) -> None:
     texture_s = time.perf_counter() - t
     t = time.perf_counter()
     peak_texture = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    integrator.brick_bounds()  # needs the voxels: build the brick grid before dropping them
+    integrator.bricks.bounds()  # needs the voxels: build the brick grid before dropping them
     bricks_s = time.perf_counter() - t
     peak_bricks = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     # the int16 source is no longer needed: keep only its shape (a zero-stride view)
     del vol
     volume = Volume(np.broadcast_to(np.zeros((), np.int16), shape), volume.spacing)
-    integrator.volume = volume
+    integrator.volume = integrator.stored.volume = volume
     t = time.perf_counter()
     image, _ = project_volume(volume, integrator=integrator, **view)
     first = time.perf_counter() - t
@@ -244,7 +244,7 @@ def part_c_child(n: int, rounds: int, before: str | None) -> None:
         sitk = None
     # the memory floor: one read of the stored volume on both cores (a Dr.Jit pass over the same slice
     # streams, one OR per word), and numpy's axial max split over two threads (halves of y)
-    streams = integrators["axial"]._half_words()[1]
+    streams = integrators["axial"].stored.half_words()[1]
     from concurrent.futures import ThreadPoolExecutor
 
     pool = ThreadPoolExecutor(2)
@@ -412,7 +412,7 @@ def part_d_child(kind: str, n: int, rounds: int) -> None:
     t = time.perf_counter()
     integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5})
     integrator.set_volume(volume)
-    integrator.brick_bounds()
+    integrator.bricks.bounds()
     ours_image, _ = project_volume(volume, integrator=integrator, **view)
     out["ours_first"] = time.perf_counter() - t
 
@@ -633,7 +633,7 @@ def part_e_child(n: int, rounds: int) -> None:
             integrator = mi.load_dict({"type": "mip", "interpolation": "trilinear", "step": 0.5, "skip_bricks": skip})
             integrator.set_volume(volume)
             if skip:
-                upper = np.asarray(integrator.brick_bounds()[0])
+                upper = np.asarray(integrator.bricks.bounds()[0])
                 out[f"{kind}_brick_max_p90"] = float(np.quantile(upper[np.isfinite(upper)], 0.9))
             project_volume(volume, integrator=integrator, **view)
             runs = []

@@ -669,9 +669,9 @@ def test_integrator_reads_a_frame_and_poses_in_patient_space(mi):
     with pytest.raises(Exception, match="4-D with 2 frames"):
         mi.load_dict({"type": "mip", "filename": path})
     unposed = mi.load_dict({"type": "mip", "filename": path, "frame": 1, "patient_space": False})
-    posed_box = np.asarray(integrator._orient[:3, :3]) @ np.asarray(integrator.volume.extent)
+    posed_box = np.asarray(integrator.stored.orientation[:3, :3]) @ np.asarray(integrator.volume.extent)
     assert not np.allclose(posed_box, unposed.volume.extent)  # the posed box is turned (LAS, oblique)
-    np.testing.assert_array_equal(unposed._orient, np.eye(4))
+    np.testing.assert_array_equal(unposed.stored.orientation, np.eye(4))
 
 
 def test_frame_task_loads_the_chosen_frame(mi):

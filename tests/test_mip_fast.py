@@ -169,7 +169,7 @@ def test_integrator_compares_words_as_floats_only_where_exact(mi):
                 a, b, path = _project_both(mi, volume, props, view=view, native=True)
                 assert path == "columns" and _same_bits(a, b), (view, mode)
         fast, _ = _pair(mi, volume, interpolation="nearest", precision="half")
-        assert fast._float_ordered() is ordered
+        assert fast.stored.float_ordered() is ordered
 
 
 @pytest.mark.parametrize("shape", [(8, 6, 10), (5, 7, 4), (3, 2, 2), (16, 16, 16)])
@@ -218,10 +218,10 @@ def test_marches_with_word_lookups_equal_texture_marches(mi, interpolation):
                                            "skip_bricks": mode != "average"})
                 integrator.set_volume(Volume(volume))
                 if texture:
-                    tex = integrator._tex.texture
-                    integrator._sampler = lambda p, tex=tex: tex.eval(mi.Point3f(p))[0]
+                    integrator.stored.word_gathers = False
+                    assert type(integrator.stored.lookup()).__name__ == "function"
                 else:
-                    assert type(integrator._lookup()).__name__ == "HalfSampler"
+                    assert type(integrator.stored.lookup()).__name__ == "HalfSampler"
                 image, _ = project_volume(volume, integrator=integrator, view=None, azimuth=30.0, elevation=20.0,
                                           size=(40, 36))
                 images.append(image)
@@ -406,7 +406,7 @@ def test_brick_bounds_hold_every_sample(mi):
     vol = BRICK_VOLUMES["phantom"].astype(np.float32) * 0.37  # non-integer: single precision
     integrator = mi.load_dict({"type": "mip"})
     integrator.set_volume(vol)
-    upper, lower, grid = integrator.brick_bounds()
+    upper, lower, grid = integrator.bricks.bounds()
     upper, lower = np.asarray(upper).reshape(grid), np.asarray(lower).reshape(grid)
     bz, by, bx = 2, 3, 1
     window = vol[bz * BRICK - 1:(bz + 1) * BRICK + 1, by * BRICK - 1:(by + 1) * BRICK + 1,
@@ -416,7 +416,7 @@ def test_brick_bounds_hold_every_sample(mi):
     nz, ny, nx = vol.shape
     points = rng.random((3, 20000))  # points inside every brick's box, texture coordinates
     cell = np.minimum((points * np.array([[nx], [ny], [nz]]) / BRICK).astype(int), np.array(grid)[::-1, None] - 1)
-    values = np.asarray(integrator._tex.texture.eval(mi.Point3f(*points.astype(np.float32)))[0])
+    values = np.asarray(integrator.stored.texture.texture.eval(mi.Point3f(*points.astype(np.float32)))[0])
     assert np.all(values <= upper[cell[2], cell[1], cell[0]])
     assert np.all(values >= lower[cell[2], cell[1], cell[0]])
 
@@ -437,12 +437,12 @@ def test_flat_brick_samples_repeat_the_texture_arithmetic(mi, value, dtype, prec
     vol = np.full((9, 10, 12), value, dtype)
     integrator = mi.load_dict({"type": "mip", "precision": precision})
     integrator.set_volume(vol)
-    integrator.brick_bounds()
-    c = np.asarray(integrator._flat)
-    assert np.all(c == c[0]) and c[0] == np.float32(value) - np.float32(integrator._tex.offset)
+    integrator.bricks.bounds()
+    c = np.asarray(integrator.bricks.flat)
+    assert np.all(c == c[0]) and c[0] == np.float32(value) - np.float32(integrator.stored.texture.offset)
     points = mi.Point3f(*np.random.default_rng(9).random((3, 50000)).astype(np.float32) * 1.2 - 0.1)
-    texture = np.asarray(integrator._tex.texture.eval(points)[0])
-    flat = np.asarray(integrator._flat_sample(mi.Float(float(c[0])), points))
+    texture = np.asarray(integrator.stored.texture.texture.eval(points)[0])
+    flat = np.asarray(integrator.bricks.flat_sample(mi.Float(float(c[0])), points))
     assert np.array_equal(flat.view(np.uint32), texture.view(np.uint32))
     if c[0] != 0:  # (half precision stores value - offset = 0 here: exact)
         assert np.count_nonzero(texture != np.float32(c[0])) > 100  # the rounding is really there

@@ -9,11 +9,12 @@ import mitsuba as mi
 import numpy as np
 
 from pointillist.core import checks
-from pointillist.imaging.orientation import inverse_directions
-from pointillist.imaging.volumes import Volume, load_volume, volume_texture
+from pointillist.imaging.volumes import Volume, load_volume
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
 from pointillist.plugins.integrators._common import develop_film
-from pointillist.plugins.integrators import _mip_bricks
+from pointillist.plugins.integrators._mip_bricks import BrickSkipper
+from pointillist.plugins.integrators._mip_columns import ColumnProjector
+from pointillist.plugins.integrators._mip_volume import StoredVolume, clip_to_box
 from pointillist.plugins.properties import (boolean_property, integer_property, number_property, scalar_transform,
                                             string_property, transform_property)
 
@@ -92,7 +93,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
      * - fast_axis
        - |bool|
        - Axis-aligned orthographic views: reduce voxel columns of the stored volume directly
-         when that is checked to give the march's result bit for bit (see ``_columns``).
+         when that is checked to give the march's result bit for bit (``ColumnProjector``).
          (Default: true)
      * - skip_bricks
        - |bool|
@@ -119,6 +120,12 @@ class MIPIntegrator(mi.SamplingIntegrator):
     (``fast_axis``; only when the march's own sample arithmetic is checked to visit exactly
     the column's voxels), and ``mip``/``minip`` rays skip 8^3 bricks whose bound cannot change
     the running result (``skip_bricks``). ``last_path`` tells which ran.
+
+    The integrator is made of parts: :attr:`stored` (the volume's texture, pose and storage facts,
+    ``_mip_volume.StoredVolume``), :attr:`columns` (the axis-aligned column reductions,
+    ``_mip_columns.ColumnProjector``) and :attr:`bricks` (the brick-skipping march,
+    ``_mip_bricks.BrickSkipper``), made anew by :meth:`set_volume`; the plain march is
+    :meth:`march`.
 
     .. tabs::
         .. code-tab:: xml
@@ -149,7 +156,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
         self.to_world = transform_property(props, "to_world")
         spacing = list(checks.spacing(string_property(props, "spacing", ""))) if "spacing" in props else None
         self.volume: Volume | None = None
-        self._tex = None
+        #: The parts made by set_volume (None before a volume is given).
+        self.stored: StoredVolume | None = None
+        self.columns: ColumnProjector | None = None
+        self.bricks: BrickSkipper | None = None
         filename = string_property(props, "filename", "")
         if filename:
             path = mi.file_resolver().resolve(filename)
@@ -174,54 +184,36 @@ class MIPIntegrator(mi.SamplingIntegrator):
             volume = volume.respaced(spacing)
         if to_world is not None:
             self.to_world = scalar_transform(to_world, "to_world")
-        filter_mode = "linear" if self.interpolation == "trilinear" else "nearest"
-        self._tex = volume_texture(volume, filter=filter_mode, precision=self.precision)
+        self.stored = StoredVolume(volume, interpolation=self.interpolation, precision=self.precision,
+                                   patient_space=self.patient_space)
         self.volume = volume
-        #: voxel axes -> world (patient LPS) directions: a 4x4 rotation / reflection
-        self._orient = np.eye(4)
-        if self.patient_space:
-            self._orient[:3, :3] = volume.directions
-        self._finite = None  # whether the stored voxels are all finite (computed when needed)
-        self._ordered = None  # whether half storage words compare as float32 (see _float_ordered)
-        self._words = None  # half storage as UInt32 words and its slice views (column reductions)
-        self._sampler = None  # the marches' texture lookup (see _lookup)
-        self._bricks = None  # per-brick maxima / minima (built on the first oblique projection)
-        self._flat = None  # per-brick constant value, NaN where the brick is not constant
+        self.columns = ColumnProjector(self.stored, self.mode)
+        self.bricks = BrickSkipper(self.stored, self.mode) if self.mode != "average" else None
 
     @property
     def background(self) -> float:
         """The raw value given to rays that miss (see the ``background`` parameter)."""
         if self._background is not None:
             return self._background
-        if self._tex is None:
+        if self.stored is None:
             return 0.0
-        value = self._tex.maximum if self.mode == "minip" else self._tex.minimum
+        texture = self.stored.texture
+        value = texture.maximum if self.mode == "minip" else texture.minimum
         return value if math.isfinite(value) else 0.0
 
     def texture_info(self) -> dict:
         """Storage of the volume texture: precision, bytes, offset, exactness, value range."""
-        t = self._tex
-        if t is None:
+        if self.stored is None:
             return {}
+        t = self.stored.texture
         return {"precision": t.precision, "nbytes": t.nbytes, "offset": t.offset, "exact": t.exact,
                 "minimum": t.minimum, "maximum": t.maximum}
 
     # ----------------------------------------------------------------------------------------
-    def _world_to_texture(self) -> mi.Transform4f:
-        ext = self.volume.extent
-        scalar = (mi.ScalarTransform4f().translate([0.5, 0.5, 0.5])
-                  @ mi.ScalarTransform4f().scale([1.0 / e for e in ext])
-                  @ scalar_transform(inverse_directions(self._orient))
-                  @ self.to_world.inverse())
-        transform = mi.Transform4f(scalar)
-        dr.make_opaque(transform)
-        return transform
-
     def ray_samples(self) -> float:
         """The most samples a ray takes: the box's diagonal over the step (``step`` voxels of the
         smallest spacing)."""
-        extent = np.asarray(self.volume.extent, dtype=np.float64)
-        return float(np.linalg.norm(extent / min(self.volume.spacing))) / self.step
+        return self.stored.ray_samples(self.step)
 
     def project_rays(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
         """Raw projected value along each ray and whether it met a (non-NaN) sample.
@@ -239,244 +231,30 @@ class MIPIntegrator(mi.SamplingIntegrator):
                 f"{self.step * samples / MAX_RAY_SAMPLES:.3g}" + (
                     "" if max(self.volume.spacing) <= 1e3 * smallest else " or a less anisotropic spacing"))
         if self.fast_axis and active is True:
-            result = self._columns(ray)
+            result = self.columns.project(ray, self.to_world, self.step, self.background)
             if result is not None:
                 self.last_path = "columns"
                 return result
-        if self.skip_bricks and self.mode != "average":
+        if self.skip_bricks and self.bricks is not None:
             self.last_path = "bricks"
-            return self._march_bricks(ray, active)
+            return self.bricks.march(ray, self.to_world, self.step, self.background, active)
         self.last_path = "march"
-        return self._march(ray, active)
-
-    # ----------------------------------------------------------------------------------------
-    # brick skipping of the oblique march (plugins/integrators/_mip_bricks.py)
-    brick_bounds = _mip_bricks.brick_bounds
-    _flat_sample = _mip_bricks.flat_sample
-    _march_bricks = _mip_bricks.march_bricks
-
-    # ----------------------------------------------------------------------------------------
-    def _storage(self):
-        """The texture's flat (Z, Y, X) storage (Float16 or Float, shared, no copy)."""
-        return self._tex.texture.tensor().array
-
-    def storage_finite(self) -> bool:
-        """Whether every stored voxel is finite (no NaN / inf); computed once per volume."""
-        if self._finite is None:
-            data = self.volume.data
-            if np.issubdtype(data.dtype, np.integer) and self._tex.exact:
-                self._finite = True  # integers stored exactly: finite by construction
-            else:
-                flat = self._storage().numpy().reshape(data.shape[0], -1)
-                self._finite = all(bool(np.isfinite(flat[z:z + 64]).all()) for z in range(0, len(flat), 64))
-        return self._finite
-
-    def _columns(self, ray: mi.Ray3f):
-        """Axis-aligned fast path: reduce voxel columns of the storage instead of marching.
-
-        Used only when it provably gives the march's result bit for bit, checked on the
-        actual rays with the march's own float32 arithmetic:
-
-        * every ray's texture-space direction has one nonzero component ``a`` (the same
-          value for all rays), its origin along ``a`` and its ``maxt`` are shared, so all
-          rays that hit have the same sample parameters along ``a``;
-        * the sample positions along ``a`` (the march's ``fma`` sequence, mapped by the
-          texture's own index arithmetic) visit every voxel of the column:
-          - nearest, mip/minip: every voxel index 0..n-1 is sampled (and no other);
-          - nearest, average: every voxel is sampled the same number m of times (m <= 8),
-            so the march's running sum adds each voxel m times in ray order;
-          - trilinear, mip/minip: every sample lies exactly on a voxel centre (weight 0)
-            or exactly half-way between two (weights 1/2, 1/2), every centre is sampled,
-            the rays pass exactly through voxel-column centres across the axis, and the
-            volume has no NaN/inf. A centre sample returns the voxel, a half-way sample
-            ``fma(b, 1/2, a / 2)`` lies between its two voxels, so the max (min) over the
-            samples is the column's max (min). Average with trilinear has no such identity
-            and always marches.
-
-        Returns ``None`` (march) when a condition fails.
-        """
-        trilinear = self.interpolation == "trilinear"
-        if trilinear and (self.mode == "average" or not self.storage_finite()):
-            return None
-        to_tex = self._world_to_texture()
-        o, d = to_tex @ ray.o, to_tex @ ray.d
-        maxt = mi.Float(ray.maxt)
-        dr.eval(o, d, maxt)
-        if dr.width(maxt) == 0:
-            return None
-        # reductions over the rays (Dr.Jit, both cores) rather than numpy copies of them
-        moving = [k for k in range(3) if bool(dr.any(d[k] != 0))]
-        if len(moving) != 1:
-            return None
-        a = moving[0]
-        first_o, first_d, first_t = (float(values[0]) for values in (o[a], d[a], maxt))
-        if not bool(dr.all((d[a] == first_d) & (o[a] == first_o) & (maxt == first_t))):
-            return None
-        b, c = [k for k in range(3) if k != a]
-        nx, ny, nz = self.volume.shape_xyz
-        res = (nx, ny, nz)
-        # one representative ray: inside across the axis, so its slab test equals every hit ray's
-        rep_o = [0.5, 0.5, 0.5]
-        rep_o[a] = first_o
-        rep_d = [0.0, 0.0, 0.0]
-        rep_d[a] = first_d
-        ro, rd = mi.Point3f(*rep_o), mi.Vector3f(*rep_d)
-        t0, t1, hit = self._clip(ro, rd, mi.Float(first_t))
-        segments, dt = self._schedule(rd, t0, t1, hit)
-        average = self.mode == "average"
-        dr.eval(t0, segments, dt, hit)
-        if not bool(hit[0]):
-            return None
-        count = int(segments[0]) + (0 if average else 1)
-        if count > 1 << 22:
-            return None
-        k = dr.arange(mi.Float, count) + (0.5 if average else 0.0)
-        t = dr.fma(k, dt, t0)
-        p = dr.fma(dr.opaque(mi.Float, rep_d[a]), t, dr.opaque(mi.Float, rep_o[a]))
-        n_a = res[a]
-        res_a = dr.opaque(mi.Float, float(n_a))
-        if trilinear:
-            pos_f = dr.fma(p, res_a, -0.5)
-        else:
-            pos_f = p * res_a
-        pos_i = mi.Int32(dr.floor(pos_f))
-        frac = pos_f - mi.Float(pos_i)
-        index = dr.clip(pos_i, 0, n_a - 1)
-        dr.eval(frac, index)
-        frac, index = frac.numpy(), index.numpy()
-        repeats = 1
-        if trilinear:
-            if not np.all((frac == 0.0) | (frac == 0.5)):
-                return None
-            if not np.array_equal(np.unique(index[frac == 0.0]), np.arange(n_a)):
-                return None
-        elif average:
-            hits = np.bincount(index, minlength=n_a)
-            repeats = int(hits[0])
-            if not (1 <= repeats <= 8 and np.all(hits == repeats)):
-                return None
-        elif not np.array_equal(np.unique(index), np.arange(n_a)):
-            return None
-        # per ray: the column it runs through (the texture's index arithmetic across the axis)
-        inside = mi.Bool(True)
-        column = mi.Int32(0)
-        exact = mi.Bool(True)
-        for axis, scale in ((c, res[b]), (b, 1)):
-            q = o[axis]
-            inside &= (q >= 0) & (q <= 1)
-            n_q = dr.opaque(mi.Float, float(res[axis]))
-            q_f = dr.fma(q, n_q, -0.5) if trilinear else q * n_q
-            q_i = mi.Int32(dr.floor(q_f))
-            exact &= ~inside | (q_f == mi.Float(q_i))
-            column = column + dr.clip(q_i, 0, res[axis] - 1) * scale
-        if trilinear:
-            if not bool(dr.all(exact)):
-                return None
-        values, seen = self._column_values(a, reverse=rep_d[a] < 0, repeats=repeats)
-        column = mi.UInt32(dr.select(inside, column, 0))
-        acc = dr.gather(mi.Float, values, column, inside)
-        seen = dr.gather(mi.UInt32, seen, column, inside)
-        valid = inside & (seen > 0)
-        offset = dr.opaque(mi.Float, self._tex.offset)
-        if average:
-            acc = acc / mi.Float(dr.maximum(seen, 1))
-        value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
-        return value, valid
-
-    def _float_ordered(self) -> bool:
-        """Whether the half storage's words compare as float32 (no -0, nothing below 2^-17 in
-        magnitude: ``_mip_accel.float_ordered``); computed once per volume. Integers stored exactly
-        (16-bit CT less its integer offset) are by construction; other data is scanned once."""
-        from pointillist.plugins.integrators._mip_accel import float_ordered
-
-        if self._ordered is None:
-            data = self.volume.data
-            if np.issubdtype(data.dtype, np.integer) and self._tex.exact:
-                self._ordered = True
-            else:
-                bits = self._storage().numpy().view(np.uint16).reshape(data.shape[0], -1)
-                self._ordered = all(float_ordered(bits[z:z + 64]) for z in range(0, len(bits), 64))
-        return self._ordered
-
-    def _half_words(self):
-        """``(words, slices)``: the half storage as UInt32 words (the same memory, two voxels a word)
-        and its zero-copy z slices, made once per volume (needs an even voxel count)."""
-        from pointillist.plugins.integrators._mip_accel import half_slices
-
-        if self._words is None:
-            words = mi.UInt32(self._storage().numpy().view(np.uint32))
-            self._words = (words, half_slices(words, self.volume.data.shape))
-        return self._words
-
-    def _lookup(self):
-        """The texture lookup of the marches: ``p -> value`` (float32, the texture's bits).
-
-        Finite half storage with an even voxel count is read through 32-bit word gathers
-        (``_mip_accel.HalfSampler``: hardware gathers instead of 16-bit gathers that LLVM splits
-        into scalar loads); anything else through the texture itself."""
-        from pointillist.plugins.integrators._mip_accel import HalfSampler
-
-        if self._sampler is None:
-            tex = self._tex.texture
-            self._sampler = lambda p: tex.eval(mi.Point3f(p))[0]
-            if self._tex.precision == "half" and self.volume.data.size % 2 == 0 and self.storage_finite():
-                self._sampler = HalfSampler(self._half_words()[0], self.volume.shape_xyz,
-                                            nearest=self.interpolation == "nearest",
-                                            normal_only=self._float_ordered())
-        return self._sampler
-
-    def _column_values(self, axis: int, *, reverse: bool, repeats: int):
-        """Column reductions of the stored volume along ``axis``: ``(acc, seen)`` per column."""
-        from pointillist.plugins.integrators._mip_accel import reduce_columns, reduce_half_words
-
-        shape = self.volume.data.shape
-        storage = self._storage()
-        finite = self.storage_finite()
-        if (self._tex.precision == "half" and finite and self.mode != "average" and shape[2] % 2 == 0):
-            words, slices = self._half_words()
-            values = reduce_half_words(words, shape, axis, self.mode, floats=self._float_ordered(), slices=slices)
-            return values, dr.full(mi.UInt32, 1, dr.width(values))
-        return reduce_columns(storage, shape, axis, self.mode, reverse=reverse, repeats=repeats,
-                              has_nan=not finite)
-
-    def _clip(self, o, d, maxt, active=True):
-        """Parametric entry/exit ``(t0, t1, hit)`` of texture-space rays against the closed unit box."""
-        t0 = dr.zeros(mi.Float, dr.width(o))
-        t1 = mi.Float(maxt)
-        for i in range(3):  # slab test against [0, 1]^3 (closed box)
-            inv = dr.rcp(d[i])
-            ta, tb = -o[i] * inv, (1.0 - o[i]) * inv
-            parallel = d[i] == 0
-            inside = (o[i] >= 0) & (o[i] <= 1)
-            near = dr.select(parallel, dr.select(inside, -dr.inf, dr.inf), dr.minimum(ta, tb))
-            far = dr.select(parallel, dr.select(inside, dr.inf, -dr.inf), dr.maximum(ta, tb))
-            t0, t1 = dr.maximum(t0, near), dr.minimum(t1, far)
-        hit = mi.Bool(active) & (t0 <= t1) & dr.isfinite(t1)
-        return t0, t1, hit
-
-    def _schedule(self, d, t0, t1, hit):
-        """Segment count and parametric step ``(segments, dt)`` of the march (0 segments on a miss)."""
-        extent = dr.opaque(mi.Vector3f, self.volume.extent)
-        step = dr.opaque(mi.Float, self.step * min(self.volume.spacing))
-        length = (t1 - t0) * dr.norm(mi.Vector3f(d) * extent)  # physical length inside the box
-        # n = ceil(length / step), forgiving float rounding of 1e-3 steps so that a ray
-        # through n whole voxels gets exactly n / step segments
-        segments = dr.maximum(dr.ceil(length / step - 1e-3), 1.0)
-        segments = dr.select(hit, dr.minimum(segments, 2.0**24), 0.0)
-        dt = (t1 - t0) / segments
-        return segments, dt
+        return self.march(ray, active)
 
     @dr.syntax
-    def _march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
-        to_tex = self._world_to_texture()
+    def march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
+        """The projection by definition: each ray sampled evenly from entry to exit (see the
+        class documentation); ``(value, valid)`` per ray. The two accelerations give its bits."""
+        stored = self.stored
+        to_tex = stored.world_to_texture(self.to_world)
         o = to_tex @ ray.o
         d = to_tex @ ray.d
-        t0, t1, hit = self._clip(o, d, ray.maxt, active)
-        segments, dt = self._schedule(d, t0, t1, hit)
+        t0, t1, hit = clip_to_box(o, d, ray.maxt, active)
+        segments, dt = stored.schedule(d, t0, t1, hit, self.step)
         average = self.mode == "average"
         count = mi.UInt32(segments) if average else mi.UInt32(segments) + dr.select(hit, 1, 0)
         shift = 0.5 if average else 0.0
-        lookup = self._lookup()
+        lookup = stored.lookup()
         if self.mode == "mip":
             acc = dr.full(mi.Float, -dr.inf, dr.width(o))
         elif self.mode == "minip":
@@ -499,7 +277,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
             seen += dr.select(ok, 1, 0)
             k += 1
         valid = seen > 0
-        offset = dr.opaque(mi.Float, self._tex.offset)
+        offset = dr.opaque(mi.Float, stored.texture.offset)
         if average:
             acc = acc / mi.Float(dr.maximum(seen, 1))
         value = dr.select(valid, acc + offset, dr.opaque(mi.Float, self.background))
