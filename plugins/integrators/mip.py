@@ -125,7 +125,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
     ``_mip_volume.StoredVolume``), :attr:`columns` (the axis-aligned column reductions,
     ``_mip_columns.ColumnProjector``) and :attr:`bricks` (the brick-skipping march,
     ``_mip_bricks.BrickSkipper``), made anew by :meth:`set_volume`; the plain march is
-    :meth:`march`.
+    ``_march`` (a Dr.Jit symbolic loop).
 
     .. tabs::
         .. code-tab:: xml
@@ -239,10 +239,10 @@ class MIPIntegrator(mi.SamplingIntegrator):
             self.last_path = "bricks"
             return self.bricks.march(ray, self.to_world, self.step, self.background, active)
         self.last_path = "march"
-        return self.march(ray, active)
+        return self._march(ray, active)
 
     @dr.syntax
-    def march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
+    def _march(self, ray: mi.Ray3f, active=True) -> tuple[mi.Float, mi.Bool]:
         """The projection by definition: each ray sampled evenly from entry to exit (see the
         class documentation); ``(value, valid)`` per ray. The two accelerations give its bits."""
         stored = self.stored

@@ -1,0 +1,17 @@
+"""``clip``: the exposed linear value itself, clipped to 0..1 (then sRGB-encoded)."""
+
+from __future__ import annotations
+
+from drjit.llvm import Float
+
+from pointillist.imaging.tone.operators._registry import TonemapOperator, register
+
+__all__ = ["clip"]
+
+
+def clip(channels: list[Float], white: float | None) -> list[Float]:
+    """x."""
+    return channels
+
+
+register(TonemapOperator("clip", (), clip, "x", order=0))
