@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
@@ -27,11 +27,13 @@ from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if
                                         to_uint8, uint8_array)
 from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
                                                select_max, select_min, window_apply, window_result)
+from pointillist.imaging.median_networks import median_of
 from pointillist.imaging.rank import radix_median
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
-    "LAPLACIAN", "KERNELS", "BORDERS", "correlate", "normalize", "sobel", "prewitt",
+    "LAPLACIAN", "KERNELS", "BORDERS", "correlate", "normalize", "sobel", "prewitt", "gradient", "Gradient",
+    "GRADIENT_KERNELS",
     "laplacian", "zero_crossings", "threshold", "median", "MEDIAN_NETWORK_MAX_SIZE", "MEDIAN_MAX_LOADS",
 ]
 
@@ -272,9 +274,20 @@ def _check_ring(ring: Any) -> tuple[int, int]:
     return checks.integer(values[0], "ring", low=0), checks.integer(values[1], "ring", low=0)
 
 
+class Gradient(NamedTuple):
+    """What :func:`gradient` returns: the magnitude ``sqrt(gx^2 + gy^2)`` and the two correlations."""
+
+    magnitude: TensorXf
+    gx: TensorXf
+    gy: TensorXf
+
+
+#: The kernel pairs of :func:`gradient` by name: (x kernel, y kernel).
+GRADIENT_KERNELS = {"sobel": (SOBEL_X, SOBEL_Y), "prewitt": (PREWITT_X, PREWITT_Y)}
+
+
 def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, components: bool):
     border = check_border(border)
-    checks.boolean(components, "components")
     tensor = as_tensor(image)
     offsets_x, combine_x = _weighted_sum(kx)
     offsets_y, combine_y = _weighted_sum(ky)
@@ -287,10 +300,30 @@ def _gradient(image: Any, kx: np.ndarray, ky: np.ndarray, border: str, component
     outs, window, _ = window_apply(tensor, 1, 1, border, offsets, combine if components else
                                     (lambda taps: combine(taps)[:1]))
     results = tuple(window_result(o, window, border) for o in outs)
-    return results if components else results[0]
+    return Gradient(*results) if components else results[0]
 
 
-def sobel(image: Any, *, border: str = "zero", components: bool = False):
+def gradient(image: Any, operator: str = "sobel", *, border: str = "zero") -> Gradient:
+    """The gradient by ``operator`` (``"sobel"`` or ``"prewitt"``, :data:`GRADIENT_KERNELS`):
+    ``(magnitude, gx, gy)``, one pass over the image.
+
+    ``gx`` and ``gy`` are the correlations with the operator's x and y kernels (signs as in
+    :func:`sobel` and :func:`prewitt`), ``magnitude`` what those functions return.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pointillist.imaging.filters import gradient
+    >>> step = np.array([[0, 0, 10, 10]] * 3, dtype=float)
+    >>> g = gradient(step, "sobel")
+    >>> np.asarray(g.gx)[1].tolist(), np.asarray(g.gy)[1].tolist()
+    ([0.0, 40.0, 40.0, 0.0], [0.0, 0.0, 0.0, 0.0])
+    """
+    operator = checks.choice(operator, "operator", tuple(GRADIENT_KERNELS))
+    return _gradient(image, *GRADIENT_KERNELS[operator], border, True)
+
+
+def sobel(image: Any, *, border: str = "zero") -> TensorXf:
     """Sobel gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' SOBEL_X and SOBEL_Y.
 
     ``gy`` is positive where intensity grows *upwards* (towards row 0): the opposite sign of
@@ -302,12 +335,11 @@ def sobel(image: Any, *, border: str = "zero", components: bool = False):
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
     border : str
         As in :func:`correlate` (default ``"zero"``: the 1-pixel ring is 0).
-    components : bool
-        Also return the correlations with SOBEL_X and SOBEL_Y: ``(magnitude, gx, gy)``.
 
     Returns
     -------
-    drjit.llvm.TensorXf or tuple of them
+    drjit.llvm.TensorXf
+        The magnitude (:func:`gradient` gives ``gx`` and ``gy`` too).
 
     Notes
     -----
@@ -323,10 +355,10 @@ def sobel(image: Any, *, border: str = "zero", components: bool = False):
     >>> np.asarray(sobel(step))[1].tolist()
     [0.0, 40.0, 40.0, 0.0]
     """
-    return _gradient(image, SOBEL_X, SOBEL_Y, border, components)
+    return _gradient(image, SOBEL_X, SOBEL_Y, border, False)
 
 
-def prewitt(image: Any, *, border: str = "zero", components: bool = False):
+def prewitt(image: Any, *, border: str = "zero") -> TensorXf:
     """Prewitt gradient magnitude ``sqrt(gx^2 + gy^2)`` with the conventions' PREWITT_X and PREWITT_Y.
 
     Same parameters, returns and edge cases as :func:`sobel`. Note PREWITT_X is
@@ -342,7 +374,7 @@ def prewitt(image: Any, *, border: str = "zero", components: bool = False):
     >>> np.asarray(prewitt(step))[1].tolist()
     [0.0, 30.0, 30.0, 0.0]
     """
-    return _gradient(image, PREWITT_X, PREWITT_Y, border, components)
+    return _gradient(image, PREWITT_X, PREWITT_Y, border, False)
 
 
 def laplacian(image: Any, *, border: str = "zero") -> TensorXf:
@@ -451,76 +483,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     return TensorXf(values, tensor.shape)
 
 
-# --- Median: a sorting network held in registers ----------------------------------------------
-#: Devillard's / Paeth's 19-exchange median-of-9 network (N. Devillard, "Fast median search:
-#: an ANSI C implementation", 1998, ``opt_med9``); pairs (i, j) leave min in i, max in j.
-_MEDIAN9 = ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3),
-            (5, 8), (4, 7), (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2))
-
-
-#: Devillard's 99-exchange median-of-25 network (N. Devillard 1998, ``opt_med25``, after
-#: Graphics Gems); median in wire 12. Checked on all 2^25 0-1 inputs against Batcher's sort
-#: (0-1 principle) in tests/test_spatial_fast_paths.py. 113 exchanges remain of a pruned Batcher.
-_MEDIAN25 = (
-    (0, 1), (3, 4), (2, 4), (2, 3), (6, 7), (5, 7), (5, 6), (9, 10), (8, 10), (8, 9), (12, 13),
-    (11, 13), (11, 12), (15, 16), (14, 16), (14, 15), (18, 19), (17, 19), (17, 18), (21, 22),
-    (20, 22), (20, 21), (23, 24), (2, 5), (3, 6), (0, 6), (0, 3), (4, 7), (1, 7), (1, 4),
-    (11, 14), (8, 14), (8, 11), (12, 15), (9, 15), (9, 12), (13, 16), (10, 16), (10, 13),
-    (20, 23), (17, 23), (17, 20), (21, 24), (18, 24), (18, 21), (19, 22), (8, 17), (9, 18),
-    (0, 18), (0, 9), (10, 19), (1, 19), (1, 10), (11, 20), (2, 20), (2, 11), (12, 21), (3, 21),
-    (3, 12), (13, 22), (4, 22), (4, 13), (14, 23), (5, 23), (5, 14), (15, 24), (6, 24), (6, 15),
-    (7, 16), (7, 19), (13, 21), (15, 23), (7, 13), (7, 15), (1, 9), (3, 11), (5, 17), (11, 17),
-    (9, 17), (4, 10), (6, 12), (7, 14), (4, 6), (4, 7), (12, 14), (10, 14), (6, 7), (10, 12),
-    (6, 10), (6, 17), (12, 17), (7, 17), (7, 10), (12, 18), (7, 12), (10, 18), (12, 20),
-    (10, 20), (10, 12))
-#: Fixed median networks: window size -> (exchanges, wire holding the median).
-_MEDIAN_NETWORKS = {9: (_MEDIAN9, 4), 25: (_MEDIAN25, 12)}
-
-
-def _batcher(n: int) -> list[tuple[int, int]]:
-    """Batcher's odd-even merge sort network on the next power of two >= n (Knuth, TAOCP 5.3.4)."""
-    size = 1 << max(0, (n - 1).bit_length())
-    pairs = []
-    p = 1
-    while p < size:
-        k = p
-        while k >= 1:
-            for j in range(k % p, size - k, 2 * k):
-                for i in range(min(k, size - j - k)):
-                    if (i + j) // (2 * p) == (i + j + k) // (2 * p):
-                        pairs.append((i + j, i + j + k))
-            k //= 2
-        p *= 2
-    return pairs
-
-
-def _exchange(a: Float, b: Float) -> tuple[Float, Float]:
-    """Compare-exchange: (min, max) from one compare and two selects (``vminps``/``vmaxps``-like;
-    ``dr.minimum``/``dr.maximum`` lower to NaN-propagating ``llvm.minimum``, 8x slower here)."""
-    less = a < b
-    return dr.select(less, a, b), dr.select(less, b, a)
-
-
-def _median_network(values: list[Float]) -> Float:
-    """Median of the values with compare-exchanges only (Dr.Jit drops the unused halves)."""
-    n = len(values)
-    if n in _MEDIAN_NETWORKS:
-        network, middle = _MEDIAN_NETWORKS[n]
-        wires = list(values)
-        for i, j in network:
-            wires[i], wires[j] = _exchange(wires[i], wires[j])
-        return wires[middle]
-    wires: list[Float | None] = list(values) + [None] * ((1 << (n - 1).bit_length()) - n)  # None = +inf
-    for i, j in _batcher(n):
-        if wires[j] is None:
-            continue                       # min(x, +inf) = x: nothing moves
-        if wires[i] is None:
-            wires[i], wires[j] = wires[j], None
-            continue
-        wires[i], wires[j] = _exchange(wires[i], wires[j])
-    return wires[n // 2]
-
-
+# --- Median: a sorting network held in registers (median_networks.py) or radix selection (rank.py)
 #: The largest window :func:`median` sorts with a network (9x9: 81 values through a Batcher network,
 #: about 2 s to compile the first time); larger windows use radix selection.
 MEDIAN_NETWORK_MAX_SIZE = 9
@@ -595,7 +558,7 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     offsets = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
 
     def combine(taps: Taps) -> tuple[Float]:
-        return (_median_network([taps[d] for d in offsets]),)
+        return (median_of([taps[d] for d in offsets]),)
 
     (out,), window, _ = window_apply(tensor, r, r, border, offsets, combine)
     return window_result(out, window, border)

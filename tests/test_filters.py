@@ -126,7 +126,8 @@ def test_sobel_matches_opencv_and_components(rng):
     img = image(rng, (11, 13))
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
     gy = -cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)  # the conventions' y is up
-    mag, ox, oy = F.sobel(img, border="clamp", components=True)
+    mag, ox, oy = F.gradient(img, "sobel", border="clamp")
+    np.testing.assert_array_equal(out(F.sobel(img, border="clamp")), out(mag))   # one magnitude, two ways
     np.testing.assert_allclose(out(ox), gx, atol=1e-3)
     np.testing.assert_allclose(out(oy), gy, atol=1e-3)
     np.testing.assert_allclose(out(mag), np.hypot(gx, gy), rtol=1e-5, atol=1e-3)
@@ -356,3 +357,16 @@ def test_the_signs_the_conventions_state_against_scipy_opencv_and_scikit_image()
     np.testing.assert_allclose(ours["prewitt_x"], -3 * skf.prewitt_v(right)[inner], rtol=1e-6)
     np.testing.assert_allclose(ours["prewitt_y"], -ndi.prewitt(down, axis=0)[inner])
     assert ours["sobel_y"].min() < 0 and ours["prewitt_x"].max() < 0   # the signs are not zero by accident
+
+
+def test_gradient_is_one_return_type_and_refuses_unknown_operators(rng):
+    """sobel and prewitt return the magnitude only; gradient returns (magnitude, gx, gy) by name."""
+    img = image(rng, (7, 9))
+    g = F.gradient(img, "prewitt")
+    assert isinstance(g, F.Gradient) and all(type(part).__name__ == "TensorXf" for part in g)
+    np.testing.assert_array_equal(out(g.magnitude), out(F.prewitt(img)))
+    np.testing.assert_allclose(out(g.gx)[1:-1, 1:-1], out(F.correlate(img, "prewitt_x"))[1:-1, 1:-1], rtol=1e-6)
+    with pytest.raises(ValueError, match="operator: expected one of 'sobel', 'prewitt', got 'canny'"):
+        F.gradient(img, "canny")
+    with pytest.raises(TypeError):
+        F.sobel(img, components=True)

@@ -15,6 +15,7 @@ import scipy.ndimage as ndi
 
 import pointillist.imaging  # noqa: F401  (libLLVM first)
 from pointillist.imaging import filters as F
+from pointillist.imaging import median_networks as N
 from pointillist.imaging.neighbourhood import finite_extrema
 
 
@@ -127,12 +128,12 @@ def _bit_sliced_wires(n):
 def test_fixed_median_networks_on_every_0_1_input(n):
     """0-1 principle: a comparator network that selects the median of every 0-1 input selects
     the median of every input. Compared against Batcher's full sorting network."""
-    network, middle = F._MEDIAN_NETWORKS[n]
+    network, middle = N.MEDIAN_NETWORKS[n]
     wires = _bit_sliced_wires(n)
     for i, j in network:
         wires[i], wires[j] = wires[i] & wires[j], wires[i] | wires[j]
     reference = _bit_sliced_wires(n) + [None] * ((1 << (n - 1).bit_length()) - n)   # None = all ones
-    for i, j in F._batcher(n):
+    for i, j in N.batcher(n):
         if reference[j] is None:
             continue
         if reference[i] is None:
