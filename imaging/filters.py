@@ -508,14 +508,14 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     image : array_like or Dr.Jit tensor, (H, W) or (H, W, C)
         Channels are filtered independently.
     size : int
-        Odd window size (1 returns the image). Up to :data:`MEDIAN_NETWORK_MAX_SIZE` (9) the
-        sorting network below; above, radix selection (:mod:`pointillist.imaging.rank`):
-        the network grows as n log^2 n in the n = size^2 values and is compiled as one
-        kernel (measured on 32x32, first call: 9 -> 2.2 s, 15 -> 10 s, 31 -> 25 s, 63 never
-        finished), the selection's kernel does not grow (8 or 32 loads per window value:
-        256x256 8-bit at 63x63 in 3.7 s, float at 31x31 in 3.6 s, here). A call needing more
-        than :data:`MEDIAN_MAX_LOADS` loads is refused with a ValueError. A window larger
-        than the image is defined by the border mode (``"crop"`` refuses it: nothing is left).
+        Odd window size (1 returns the image). Up to :data:`MEDIAN_NETWORK_MAX_SIZE` (9) a
+        sorting network (:mod:`pointillist.imaging.median_networks`); above, radix selection
+        (:mod:`pointillist.imaging.rank`): the network grows as n log^2 n in the n = size^2
+        values and is compiled as one kernel, the selection's kernel does not grow (8 or 32
+        loads per window value; compile and run times in ``benchmarks/RESULTS.md``). A call
+        needing more than :data:`MEDIAN_MAX_LOADS` loads is refused with a ValueError. A
+        window larger than the image is defined by the border mode (``"crop"`` refuses it:
+        nothing is left).
     border : str
         As in :func:`correlate`; the default ``"clamp"`` matches ``cv2.medianBlur``
         (the course only defines border handling for correlation).

@@ -1,4 +1,13 @@
-"""The ``mip`` integrator: maximum (minimum, average) intensity projection of a volume."""
+"""The ``mip`` integrator: maximum (minimum, average) intensity projection of a volume.
+
+The integrator is made of parts, made anew by :meth:`MIPIntegrator.set_volume`: ``stored`` (the
+volume's texture, pose and storage facts, the lookup and the march geometry:
+``_mip_volume.StoredVolume``), ``columns`` (axis-aligned orthographic views reduce voxel columns
+of the stored volume directly, only when the march's own sample arithmetic is checked to visit
+exactly the column's voxels: ``_mip_columns.ColumnProjector``) and ``bricks`` (``mip``/``minip``
+rays skip 8^3 bricks whose bound cannot change the running result: ``_mip_bricks.BrickSkipper``).
+The plain march, the definition the other two reproduce bit for bit, is ``MIPIntegrator._march``.
+"""
 
 from __future__ import annotations
 
@@ -25,7 +34,7 @@ MODES = ("mip", "minip", "average")
 
 #: :meth:`MIPIntegrator.project` casts its rays in blocks of TILE x TILE pixels (the lanes of a SIMD packet
 #: a 4 x 4 block instead of 16 pixels of a row): neighbouring rays read neighbouring texels, so the
-#: gathers of a packet touch fewer cache lines (oblique 512^3 views: 20-25 % faster; same values).
+#: gathers of a packet touch fewer cache lines (same values; the gain is in benchmarks/RESULTS.md).
 TILE = 4
 
 #: The most samples one ray may take (the box's diagonal over the step): a smaller step, or a
@@ -115,17 +124,8 @@ class MIPIntegrator(mi.SamplingIntegrator):
     (like ``numpy.nanmax``); a trilinear sample touching a NaN voxel is skipped too.
     Only volume work is traced: no surface, emitter or medium code runs.
 
-    Two accelerations give the same float32 bits as that march (tests compare them):
-    axis-aligned orthographic views reduce voxel columns of the stored volume directly
-    (``fast_axis``; only when the march's own sample arithmetic is checked to visit exactly
-    the column's voxels), and ``mip``/``minip`` rays skip 8^3 bricks whose bound cannot change
-    the running result (``skip_bricks``). ``last_path`` tells which ran.
-
-    The integrator is made of parts: :attr:`stored` (the volume's texture, pose and storage facts,
-    ``_mip_volume.StoredVolume``), :attr:`columns` (the axis-aligned column reductions,
-    ``_mip_columns.ColumnProjector``) and :attr:`bricks` (the brick-skipping march,
-    ``_mip_bricks.BrickSkipper``), made anew by :meth:`set_volume`; the plain march is
-    ``_march`` (a Dr.Jit symbolic loop).
+    ``fast_axis`` and ``skip_bricks`` give the same float32 bits as that march (the tests
+    compare them); ``last_path`` tells which ran ("columns", "bricks" or "march").
 
     .. tabs::
         .. code-tab:: xml
