@@ -150,9 +150,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     absolute floor (Mitsuba 3.9.1's ``spawn_ray`` adds 9e-5 whatever the
     unit). Shadow rays end just short of their target, itself moved off the
     light's surface. Scenes scaled by 1e-6 .. 1e6 render the same image, and
-    moved 1e3 from the origin change 0.1 - 1.4 % of the pixels (float32
-    positions there are 6e-5 apart: tests/test_stiff.py; README "Numerical
-    robustness"). Normals facing away are handled by each BSDF (one-sided
+    scenes far from the origin are loaded camera-relative (the documentation's
+    page "Numerical robustness" gives the figures). Normals facing away are handled by each BSDF (one-sided
     BSDFs return black). A ray whose throughput becomes 0 stops early.
 
     .. code-block:: xml
