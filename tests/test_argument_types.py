@@ -29,6 +29,7 @@ ENGINE = {
     "pointillist.imaging.neighbourhood.finite_extrema": "the filters pass the image's shape and their checked ring",
     "pointillist.imaging.neighbourhood.window_apply": "the windowed filters check their radii",
     "pointillist.imaging.rank.radix_median": "filters.median checks size",
+    "pointillist.imaging.median_networks.batcher": "filters.median checks size (n is its window's value count)",
     "pointillist.imaging.wavefront.blocked": "the dithering methods check the shape",
     "pointillist.imaging.wavefront.diffuse_wavefront": "the dithering methods check the shape",
     "pointillist.imaging.wavefront.wavefront_schedule": "the dithering methods check the shape",

@@ -6,12 +6,12 @@ from drjit.llvm import Float
 
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
 
-__all__ = ["clip"]
+__all__: list[str] = []
 
 
-def clip(channels: list[Float], white: float | None) -> list[Float]:
+def _clip(channels: list[Float], white: float | None) -> list[Float]:
     """x."""
     return channels
 
 
-register(TonemapOperator("clip", (), clip, "x", order=0))
+register(TonemapOperator("clip", (), _clip, "x", order=0))

@@ -10,7 +10,7 @@ from pointillist.imaging.arrays import opaque_scalar
 from pointillist.imaging.tone.operators._curves import HDR_MAX
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
 
-__all__ = ["HABLE_CONSTANTS", "hable"]
+__all__ = ["HABLE_CONSTANTS"]
 
 #: Hable's filmic curve (J. Hable, "Uncharted 2: HDR Lighting", GDC 2010): shoulder strength A,
 #: linear strength B, linear angle C, toe strength D, toe numerator E, toe denominator F,
@@ -19,7 +19,7 @@ HABLE_CONSTANTS = {"A": 0.15, "B": 0.50, "C": 0.10, "D": 0.20, "E": 0.02, "F": 0
                    "W": 11.2, "exposure_bias": 2.0}
 
 
-def hable(channels: list[Float], white: float | None) -> list[Float]:
+def _hable(channels: list[Float], white: float | None) -> list[Float]:
     """f(2 x) / f(W) per channel (``white`` sets W)."""
     k = HABLE_CONSTANTS
     A, B, C, D, E, F = (k[n] for n in "ABCDEF")
@@ -36,7 +36,7 @@ def hable(channels: list[Float], white: float | None) -> list[Float]:
     return [f(k["exposure_bias"] * c) * norm for c in channels]
 
 
-register(TonemapOperator("hable", ("white",), hable,
+register(TonemapOperator("hable", ("white",), _hable,
                          "Hable's filmic curve f(2 x) / f(W), f(x) = (x (A x + C B) + D E) / (x (A x + B) + D F) "
                          "- E / F (HABLE_CONSTANTS; white sets W = 11.2), computed as x ((F - E) A x + B (C F - E)) "
                          "/ (F (x (A x + B) + D F)) (the same function without the cancellation of its constant "

@@ -7,14 +7,14 @@ from drjit.llvm import Float
 from pointillist.imaging.tone.operators._curves import log1p, on_luminance
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
 
-__all__ = ["log_curve"]
+__all__: list[str] = []
 
 
-def log_curve(lum: Float, w: Float) -> Float:
+def _log_curve(lum: Float, w: Float) -> Float:
     """L_d = log(1 + L) / log(1 + w)."""
     return log1p(lum) / log1p(w)
 
 
-register(TonemapOperator("log", ("white",), on_luminance(log_curve),
+register(TonemapOperator("log", ("white",), on_luminance(_log_curve),
                          "logarithmic response L_d = log(1 + L) / log(1 + w) on luminance, w defaults to the largest "
                          "luminance", order=50))
