@@ -359,11 +359,11 @@ def test_scene_file_renders_and_matches_project(mi):
 
 def test_surfaces_and_emitters_are_not_traced(mi):
     vol = _blob((6, 6, 6))
-    from pointillist.mip import _sensor_dict, view_axes, view_frame
+    from pointillist.mip.views import sensor_dict, view_axes, view_frame
 
     axes = view_axes("axial")
     size, hw, hh = view_frame((6, 6, 6), axes, size=(16, 16))
-    sensor = _sensor_dict(mi, np.array([6.0, 6, 6]), axes, size, hw, hh, None)
+    sensor = sensor_dict(mi, np.array([6.0, 6, 6]), axes, size, hw, hh, None)
     empty = mi.load_dict({"type": "scene", "sensor": sensor})
     cluttered = mi.load_dict({"type": "scene", "sensor": sensor,
                               "wall": {"type": "sphere", "center": [0, 0, -5], "radius": 1.5},

@@ -335,13 +335,13 @@ def test_views_that_are_not_axis_aligned_columns_fall_back_to_the_march(mi):
 
 
 def test_render_with_several_samples_per_pixel_uses_the_columns(mi):
-    from pointillist.mip import _sensor_dict, view_axes, view_frame
+    from pointillist.mip.views import sensor_dict, view_axes, view_frame
 
     vol = VOLUMES["odd_int16"]
     axes = view_axes("coronal")
     volume = Volume(vol)
     size, hw, hh = view_frame(volume.extent, axes, size=(20, 12))
-    sensor = _sensor_dict(mi, np.asarray(volume.extent), axes, size, hw, hh, None)
+    sensor = sensor_dict(mi, np.asarray(volume.extent), axes, size, hw, hh, None)
     sensor["sampler"]["sample_count"] = 4
     scene = mi.load_dict({"type": "scene", "sensor": sensor})
     fast, plain = _pair(mi, vol, interpolation="nearest", window="0,1000")
