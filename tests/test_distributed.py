@@ -426,6 +426,11 @@ def test_compare_sweep_distributed_equals_serial(cli, tmp_path):
     assert serial.returncode == 0, serial.stderr
     remote = cli(*common, "--out", tmp_path / "remote", "--workers", "2")
     assert remote.returncode == 0, remote.stderr
+    # what the cluster rendered for this run is new, not reused (it read them back from the folder)
+    assert "8 renders (8 new, 0 reused)" in serial.stdout and "8 renders (8 new, 0 reused)" in remote.stdout, \
+        remote.stdout
+    again = cli(*common, "--out", tmp_path / "remote", "--workers", "2")
+    assert again.returncode == 0 and "8 renders (0 new, 8 reused)" in again.stdout, again.stdout
     assert "9 renders done on the cluster" in remote.stdout  # 8 sweep renders + the reference
 
     def rows(folder):

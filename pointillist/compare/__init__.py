@@ -146,15 +146,15 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
             save_scene_facts(out, key, facts)
         notes: list[str] = [filter_note(facts.film_filter)]
         log(notes[0])
-        cluster_renders = 0
+        rendered: list = []
         if workers or scheduler:
             from pointillist.distributed import open_client
 
             with open_client(workers, scheduler, tasks=len(tasks) + (0 if reference else 1)) as client:
-                cluster_renders = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
-                                                  reference_spp=None if reference else reference_spp,
-                                                  progress=progress, key=key)
-            log(f"{cluster_renders} renders done on the cluster")
+                rendered = prerender_sweep(client, scene, tasks, params=params, out_dir=out,
+                                           reference_spp=None if reference else reference_spp,
+                                           progress=progress, key=key)
+            log(f"{len(rendered)} renders done on the cluster")
         if reference is not None:
             reference = Path(reference)
         else:
@@ -162,12 +162,12 @@ def compare_scene(scene: str | os.PathLike, *, methods: Sequence[str] | str = DE
         maps: dict[str, dict[str, np.ndarray]] | None = {} if report else None  # FLIP once per render, not twice
         spectra: dict = {}
         records = run_sweep(str(scene), tasks, params=params, out_dir=str(out), reference=reference,
-                            progress=progress, log=log, maps=maps, spectra=spectra, key=key)
+                            progress=progress, log=log, maps=maps, spectra=spectra, key=key, rendered=rendered)
         signals.check()
         paths, kept = _write_outputs(records, out, scene=str(scene), reference=reference, notes=notes,
                                      spectra=spectra, maps=maps)
     return CompareResult(records=records, paths=paths, reference=reference, out_dir=out,
-                         cluster_renders=cluster_renders, notes=notes, kept=kept)
+                         cluster_renders=len(rendered), notes=notes, kept=kept)
 
 
 def _plan(scene: Path, out: Path, reference: str | os.PathLike | None, report: bool):

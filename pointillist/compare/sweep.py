@@ -16,7 +16,7 @@ scoring pass that follows finds them finished.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -149,8 +149,12 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
               reference: Path, progress: bool = True, log: Callable[[str], None] | None = None,
               maps: dict[str, dict[str, np.ndarray]] | None = None,
               spectra: dict[str, Any] | None = None,
-              render: Callable[..., RenderRecord] = render_one, key: str | None = None) -> list[RenderRecord]:
+              render: Callable[..., RenderRecord] = render_one, key: str | None = None,
+              rendered: Collection[Task] = ()) -> list[RenderRecord]:
     """Run ``tasks`` (skipping finished ones), then score each render against ``reference``.
+
+    ``rendered``: tasks this run already rendered elsewhere (:func:`prerender_sweep` on a cluster):
+    their records are found finished but count as new (``cached`` false), not as reused.
 
     With ``progress``, a progress bar draws on a terminal (standard error a TTY);
     otherwise (a log file, a pipe) ``log`` gets one line per finished render instead
@@ -167,7 +171,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
     """
     key = key or scene_key(scene_path, params)
     records = _render_tasks(scene_path, tasks, params=params, out_dir=out_dir, key=key, render=render,
-                            progress=progress, log=log)
+                            progress=progress, log=log, rendered=frozenset(rendered))
     reused = _score_records(records, out_dir=out_dir, reference=reference, maps=maps, spectra=spectra)
     if progress and log is not None and reused:
         log(f"compare: scores of {reused} of {len(records)} renders reused (same render and reference)")
@@ -176,7 +180,7 @@ def run_sweep(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] 
 
 def _render_tasks(scene_path: str, tasks: Sequence[Task], *, params: dict[str, str] | None, out_dir: str, key: str,
                   render: Callable[..., RenderRecord], progress: bool,
-                  log: Callable[[str], None] | None) -> list[RenderRecord]:
+                  log: Callable[[str], None] | None, rendered: frozenset = frozenset()) -> list[RenderRecord]:
     """The sweep's first step: every task's record, rendered or found finished, with its progress."""
     from pointillist.compare.tables import format_time
     from pointillist.core.terminal import draws_progress
@@ -193,6 +197,8 @@ def _render_tasks(scene_path: str, tasks: Sequence[Task], *, params: dict[str, s
         if bar is not None:
             bar.set_postfix_str(task.stem)
         record = render(scene_path, task.method, task.value, task.seed, params, out_dir, key)
+        if record.cached and task in rendered:
+            record.cached = False  # rendered by this run, on the cluster
         records.append(record)
         if record.notice and log is not None:
             log(f"compare: notice: {record.notice}")
@@ -245,7 +251,7 @@ def compare_task(call: tuple) -> Any:
 
 def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params: dict[str, str] | None,
                     out_dir: str | os.PathLike, reference_spp: int | None = None,
-                    retries: int = DEFAULT_RETRIES, progress: bool = True, key: str | None = None) -> int:
+                    retries: int = DEFAULT_RETRIES, progress: bool = True, key: str | None = None) -> list[Task]:
     """Render a comparison's missing renders (and its reference) as tasks on ``client``.
 
     Every :class:`Task` (and the reference, when
@@ -253,7 +259,8 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
     ``out_dir`` becomes one :func:`compare_task`; the workers write them where a
     serial ``compare`` would, so the serial scoring pass that follows finds
     them all finished. ``out_dir`` and the scene must be reachable by the
-    workers under the same (absolute) paths. Returns how many were rendered.
+    workers under the same (absolute) paths. Returns the tasks rendered (the reference as the task
+    ``(REFERENCE_SAMPLER, reference_spp, REFERENCE_SEED)``).
     """
     scene = str(Path(scene).resolve())
     out_dir = str(Path(out_dir).resolve())
@@ -272,4 +279,4 @@ def prerender_sweep(client, scene: str | os.PathLike, tasks: Sequence, *, params
     keys = [json_key(c) for c in todo]
     run_tasks(compare_task, todo, client=client, keys=keys, retries=retries, progress=progress,
               desc="compare on cluster")
-    return len(todo)
+    return [Task(call[1], call[2], call[3]) for call in todo]
