@@ -11,8 +11,8 @@ from pointillist.core import checks
 #: Voxels per slab when the phantom is evaluated (bounds its temporary memory).
 _PHANTOM_SLAB_VOXELS = 8 << 20
 
-#: The ten ellipsoids of the modified 3-D Shepp-Logan phantom (geometry of
-#: M. Schabel's ``phantom3d`` after Kak & Slaney, "Principles of Computerized
+#: The ten ellipsoids of the modified 3-D Shepp-Logan phantom, in Hounsfield units; geometry of
+#: Matthias Schabel's ``phantom3d`` after Kak and Slaney ("Principles of Computerized
 #: Tomographic Imaging", 1988), with additive Hounsfield-unit values chosen so
 #: the sums are CT-like: air -1000 outside, skull bone 800, brain 40,
 #: CSF-filled ventricles 5, lesions 70 and 100, and one 1200 HU calcification

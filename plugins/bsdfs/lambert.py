@@ -110,4 +110,5 @@ class LambertBSDF(mi.BSDF):
         return f"LambertBSDF[\n  reflectance = {self.m_reflectance}\n]"
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = LambertBSDF

@@ -214,4 +214,5 @@ class PhongBSDF(mi.BSDF):
                 f"  specular_reflectance = {self.m_ks},\n  exponent = {self.m_exponent}\n]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = PhongBSDF

@@ -489,4 +489,5 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = AdaptiveIntegrator

@@ -363,4 +363,5 @@ class MIPIntegrator(mi.SamplingIntegrator):
                 f"window={self.window}, colormap={self.colormap}, volume={shape}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = MIPIntegrator

@@ -275,4 +275,5 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 f"  hide_emitters = {self.hide_emitters},\n  specialize = {self.specialize}\n]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = WhittedIntegrator

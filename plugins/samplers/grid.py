@@ -60,4 +60,5 @@ class GridSampler(GridLayout):
                 f"seed={self._base_seed}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = GridSampler

@@ -66,4 +66,5 @@ class JitterSampler(GridLayout):
                 f"seed={self._base_seed}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = JitterSampler

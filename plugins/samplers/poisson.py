@@ -251,6 +251,7 @@ class PoissonSampler(PatternSampler):
                 f"relative_radius={self.relative_radius:.3f}, seed={self._base_seed}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = PoissonSampler
 
 

@@ -111,4 +111,5 @@ class SobolSampler(SobolBase):
                 f"seed={self._base_seed}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = SobolSampler

@@ -195,4 +195,5 @@ class ZSobolSampler(SobolBase):
                 f"seed={self._base_seed}, film={'attached' if self._film else 'unknown'}]")
 
 
+#: The plugin's class, which pointillist.plugins registers with Mitsuba under this file's name.
 PLUGIN_CLASS = ZSobolSampler

@@ -37,7 +37,7 @@ __all__ = ["REFERENCE_SAMPLER", "REFERENCE_SEED", "render_one", "render_referenc
 #: stratified, an implementation independent of the samplers compared) ...
 REFERENCE_SAMPLER = "stratified"
 
-#: ... with a seed no sweep uses.
+#: The seed of the reference render: one no sweep uses.
 REFERENCE_SEED = 1_000_003
 
 

@@ -8,7 +8,7 @@ from pointillist.imaging.tone.operators._registry import TonemapOperator, regist
 
 __all__ = ["ACES_CONSTANTS"]
 
-#: K. Narkowicz, "ACES Filmic Tone Mapping Curve" (2016): x (a x + b) / (x (c x + d) + e).
+#: The constants of Krzysztof Narkowicz's "ACES Filmic Tone Mapping Curve" (2016): x (a x + b) / (x (c x + d) + e).
 ACES_CONSTANTS = {"a": 2.51, "b": 0.03, "c": 2.43, "d": 0.59, "e": 0.14}
 
 

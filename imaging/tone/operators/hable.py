@@ -12,7 +12,7 @@ from pointillist.imaging.tone.operators._registry import TonemapOperator, regist
 
 __all__ = ["HABLE_CONSTANTS"]
 
-#: Hable's filmic curve (J. Hable, "Uncharted 2: HDR Lighting", GDC 2010): shoulder strength A,
+#: The constants of Hable's filmic curve (John Hable, "Uncharted 2: HDR Lighting", GDC 2010): shoulder strength A,
 #: linear strength B, linear angle C, toe strength D, toe numerator E, toe denominator F,
 #: linear white point W, and the exposure bias applied before the curve.
 HABLE_CONSTANTS = {"A": 0.15, "B": 0.50, "C": 0.10, "D": 0.20, "E": 0.02, "F": 0.30,
