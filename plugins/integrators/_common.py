@@ -9,7 +9,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-__all__ = ["develop_film"]
+__all__ = ["develop_film", "film_sample"]
 
 
 def develop_film(film, develop: bool, evaluate: bool) -> mi.TensorXf:
@@ -22,3 +22,14 @@ def develop_film(film, develop: bool, evaluate: bool) -> mi.TensorXf:
     if evaluate:
         dr.eval(image)
     return image
+
+
+def film_sample(film, position: mi.Vector2f) -> mi.Vector2f:
+    """The sensor's position sample (``sample2`` of ``Sensor.sample_ray``) of a film position in
+    pixels (the crop offset included), as Mitsuba's ``ADIntegrator.sample_rays`` computes it:
+    relative to the film's crop window, ``(position - crop_offset) / crop_size``. A sensor maps
+    [0, 1]^2 onto its crop window, so dividing by the whole film's size instead shifts and scales
+    every ray of a cropped film (a tiled render)."""
+    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+    offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+    return dr.fma(position, scale, offset)

@@ -20,7 +20,7 @@ import numpy as np
 from pointillist.core import checks
 from pointillist.imaging.volumes import Volume, load_volume
 from pointillist.imaging.window import apply_window, colormap_lut, parse_window
-from pointillist.plugins.integrators._common import develop_film
+from pointillist.plugins.integrators._common import develop_film, film_sample
 from pointillist.plugins.integrators._mip_bricks import BrickSkipper
 from pointillist.plugins.integrators._mip_columns import ColumnProjector
 from pointillist.plugins.integrators._mip_volume import StoredVolume, clip_to_box
@@ -325,8 +325,7 @@ class MIPIntegrator(mi.SamplingIntegrator):
             sampler.seed(seed, count)
             pos += sampler.next_2d()
         pos += mi.Vector2f(film.crop_offset())
-        ray, _ = sensor.sample_ray(0.0, 0.0, pos * dr.rcp(mi.ScalarVector2f(film.size())),
-                                   mi.Point2f(0.5, 0.5))
+        ray, _ = sensor.sample_ray(0.0, 0.0, film_sample(film, pos), mi.Point2f(0.5, 0.5))
         return ray, pos, (width, height), pixel, real
 
     def project(self, scene, sensor=0) -> mi.TensorXf:
