@@ -331,3 +331,72 @@ def test_flags_and_traversal(mi):
 def test_bad_parameters_are_rejected(mi, params, word):
     with pytest.raises(Exception, match=word):
         mi.load_dict(params)
+
+
+def _phong_eval_sum(mi, dr, bsdf, wi, wo):
+    value = bsdf.eval(mi.BSDFContext(), _si(mi, dr, wi), _vec(mi, wo))
+    return dr.sum(value.x + value.y + value.z)
+
+
+@pytest.mark.parametrize("key, base, step", [
+    ("exponent.value", 12.0, 1e-2),
+    ("diffuse_reflectance.value", [0.3, 0.2, 0.1], 1e-3),
+    ("specular_reflectance.value", [0.4, 0.35, 0.3], 1e-3),
+])
+def test_phong_parameters_are_differentiable_and_their_gradients_are_differences(mi, dr, key, base, step):
+    """Every continuous phong parameter is flagged differentiable, and forward-mode AD of eval
+    matches central differences (the exponent's too: it was flagged non-differentiable)."""
+    rng = np.random.default_rng(11)
+    wi, wo = _unit(rng, 400), _unit(rng, 400)
+    wo[:100] = wi[:100] * np.array([-1, -1, 1], dtype=np.float32)   # near the lobe's peak
+    wo[100:200] = 0.9 * wo[100:200] + 0.1 * wi[100:200] * np.array([-1, -1, 1], dtype=np.float32)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    bsdf = mi.load_dict({"type": "phong", "exponent": 12.0, "diffuse_reflectance": [0.3, 0.2, 0.1],
+                         "specular_reflectance": [0.4, 0.35, 0.3]})
+    params = mi.traverse(bsdf)
+    assert params.flags(key) & int(mi.ParamFlags.NonDifferentiable) == 0
+    value = params[key]
+    dr.enable_grad(value)
+    params.update()
+    total = _phong_eval_sum(mi, dr, bsdf, wi, wo)
+    dr.set_grad(value, type(value)(1.0))   # a colour: along (1, 1, 1)
+    dr.forward_to(total)
+    grad = float(dr.grad(total)[0])
+
+    def at(shift):
+        fresh = mi.load_dict({"type": "phong", "exponent": 12.0, "diffuse_reflectance": [0.3, 0.2, 0.1],
+                              "specular_reflectance": [0.4, 0.35, 0.3]})
+        p = mi.traverse(fresh)
+        b = np.asarray(base, dtype=np.float64) + shift
+        p[key] = type(p[key])(*b.tolist()) if np.ndim(b) else type(p[key])(float(b))
+        p.update()
+        return float(_phong_eval_sum(mi, dr, fresh, wi, wo)[0])
+
+    difference = (at(step) - at(-step)) / (2 * step)
+    assert abs(grad) > 1e-3
+    assert grad == pytest.approx(difference, rel=2e-3)
+
+
+def test_phong_rescale_derivative_at_the_kink_is_the_one_from_below(mi, dr):
+    """At Kd + Ks = 1 exactly the rescale has a kink: the documented derivative is the one-sided
+    one from below (unscaled branch), not the one from above (where Kd + Ks are divided by their sum)."""
+    rng = np.random.default_rng(12)
+    wi, wo = _unit(rng, 300), _unit(rng, 300)
+
+    def bsdf_at(kd):
+        return mi.load_dict({"type": "phong", "exponent": 8.0, "diffuse_reflectance": [kd, 0.5, 0.5],
+                             "specular_reflectance": [0.25, 0.25, 0.25]})
+
+    bsdf = bsdf_at(0.75)                                     # red: 0.75 + 0.25 = 1 exactly
+    params = mi.traverse(bsdf)
+    value = params["diffuse_reflectance.value"]
+    dr.enable_grad(value)
+    params.update()
+    total = _phong_eval_sum(mi, dr, bsdf, wi, wo)
+    dr.set_grad(value, type(value)(1.0, 0.0, 0.0))
+    dr.forward_to(total)
+    grad = float(dr.grad(total)[0])
+    f = {kd: float(_phong_eval_sum(mi, dr, bsdf_at(kd), wi, wo)[0]) for kd in (0.74, 0.75, 0.76)}
+    below, above = (f[0.75] - f[0.74]) / 0.01, (f[0.76] - f[0.75]) / 0.01
+    assert abs(below - above) > 0.1 * abs(below)             # a real kink
+    assert grad == pytest.approx(below, rel=1e-3)

@@ -32,7 +32,7 @@ class PhongBSDF(mi.BSDF):
      * - exponent
        - |float| or |texture|
        - Phong exponent :math:`n \ge 0` (default: 30)
-       - exposed
+       - exposed, differentiable
 
     The energy-normalised Phong model (Lafortune and Willems 1994, the
     ``phong`` plugin of Mitsuba 0.5):
@@ -49,7 +49,10 @@ class PhongBSDF(mi.BSDF):
     :math:`K_d + K_s`. Physically plausible: where :math:`K_d + K_s > 1` in a
     channel both are divided by their sum in that channel (a warning is logged
     when this is detected on construction; for textures it is applied per
-    texel while rendering).
+    texel while rendering). Derivatives: every parameter is differentiable; the
+    rescale is continuous but has a kink where :math:`K_d + K_s = 1` exactly, so
+    there the derivative is the one-sided one from below, the unscaled branch
+    (on a tie Dr.Jit's ``maximum(Kd + Ks, 1)`` gives the gradient to the constant).
 
     Relation to the course's local model :math:`I = K_a I_a + K_d I_L (n \cdot l) + K_s I_L
     (r \cdot e)^n`: a BSDF is multiplied by the cosine :math:`n \cdot l` in the rendering
@@ -204,7 +207,7 @@ class PhongBSDF(mi.BSDF):
     def traverse(self, callback):
         callback.put("diffuse_reflectance", self.m_kd, mi.ParamFlags.Differentiable)
         callback.put("specular_reflectance", self.m_ks, mi.ParamFlags.Differentiable)
-        callback.put("exponent", self.m_exponent, mi.ParamFlags.NonDifferentiable)
+        callback.put("exponent", self.m_exponent, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys=[]):
         pass
