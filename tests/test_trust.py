@@ -506,7 +506,7 @@ def test_compare_renders_a_damaged_cached_render_again(mi, assets, tmp_path):
 
     render.write_bytes(b"")
     assert prerender_sweep(None, assets / "scene.xml", [Task("grid", 1, 0)], params={}, out_dir=out,
-                           reference_spp=4, progress=False) == 1
+                           reference_spp=4, progress=False) == [Task("grid", 1, 0)]
 
 
 # ------------------------------------------------------------------ checkpoints
