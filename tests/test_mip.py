@@ -730,3 +730,22 @@ def test_a_tiled_render_of_a_mip_scene_equals_the_whole_render(cli, tmp_path):
     # the same rays up to float32 rounding of their sample positions (a tile's own mapping onto its
     # window): within 1e-4 of the display value (1.9e-5 measured), where the wrong mapping was off by 0.9
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+
+
+def test_a_turntable_without_a_view_orbits_upright_from_the_coronal_view(cli, tmp_path):
+    """`--turntable N` alone: frame 0 is the coronal view and frame N/4 the view from the patient's
+    left (azimuth 90, the sagittal direction), upright; with `--view axial` it spins in the image plane."""
+    from PIL import Image
+
+    def png(path):
+        return np.asarray(Image.open(path).convert("L")).astype(float)
+
+    volume = "scenes/phantom64.vol"
+    done = cli("mip", volume, "--turntable", "4", "--size", "32", "--no-labels", "-o", tmp_path / "t.png")
+    assert done.returncode == 0, done.stderr
+    assert not (tmp_path / "t.png").exists() and (tmp_path / "t_003.png").exists()
+    for name, args in (("coronal", ["--view", "coronal"]), ("side", ["--azimuth", "90", "--elevation", "0"])):
+        single = cli("mip", volume, "--size", "32", "--no-labels", *args, "-o", tmp_path / f"{name}.png")
+        assert single.returncode == 0, single.stderr
+    np.testing.assert_array_equal(png(tmp_path / "t_000.png"), png(tmp_path / "coronal.png"))
+    np.testing.assert_array_equal(png(tmp_path / "t_001.png"), png(tmp_path / "side.png"))

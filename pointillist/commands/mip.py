@@ -30,8 +30,9 @@ oblique acquisition (voxel axes not along the patient's), the in-plane voxel spa
 along the image's right and up (the two voxel axes other than the one closest to the
 viewing direction) gives the pixel size and the image covers the whole volume.
 4-D inputs (4-D NIfTI, DICOM series with several images per slice position) need
---frame N. --turntable N writes N frames around the patient's superior axis (at most
-3600, one every 0.1 degree; and an animated GIF beside them when imageio is installed).
+--frame N. --turntable N writes N frames OUT_000.png ... around the patient's superior axis
+(at most 3600, one every 0.1 degree; and OUT.gif when imageio is installed), upright from the
+coronal view unless a view is given.
 """
 
 from __future__ import annotations

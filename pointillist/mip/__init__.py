@@ -63,9 +63,13 @@ class MipResult:
 
 def _frame_views(view: str | None, azimuth: float | None, elevation: float | None,
                  turntable: int | None) -> list[dict]:
-    """The views to project: one named or azimuth/elevation view, or ``turntable`` frames about z."""
+    """The views to project: one named or azimuth/elevation view, or ``turntable`` frames about z.
+
+    Without a view, one projection is axial; a turntable orbits upright from the coronal view
+    (elevation 0: the patient stands and turns, as a viewer's spin does; about z from the axial
+    view the frames would only turn in the image plane)."""
     if azimuth is None and elevation is None:
-        views = [dict(view=view or "axial")]
+        views = [dict(view=view or ("coronal" if turntable else "axial"))]
     else:
         views = [dict(view=None, azimuth=azimuth or 0.0, elevation=elevation or 0.0)]
     if not turntable:
