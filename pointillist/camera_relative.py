@@ -73,7 +73,6 @@ PRECISION = 1e-5
 #: this from the origin (float32 coordinates there are 6.1e-5 apart).
 FAR = 1e3
 
-_FLOAT32_MAX = struct.unpack("<f", b"\xff\xff\x7f\x7f")[0]
 
 #: A position: (x, y, z) in float64. Plain Python floats: a plain render imports no numpy.
 Point = tuple[float, float, float]
@@ -184,8 +183,8 @@ def _minus(a: Point, b: Point) -> Point:
 
 
 def _float32(point: Point) -> Point:
-    """Each coordinate rounded to the nearest float32 (they are within float32's range)."""
-    return _point(struct.unpack("<3f", struct.pack("<3f", *point)))
+    """Each coordinate rounded to the nearest float32."""
+    return _point(map(checks.round_to_float32, point))
 
 
 def _shifted(offset: Point, transform=None, then: Point | None = None):
@@ -369,7 +368,7 @@ def recentre_rule(sensor, positions) -> tuple[bool, str]:
     if sensor is None:
         return False, "the rendered sensor has no position (distant or attached to a shape)"
     sensor = _point(sensor)
-    if not all(abs(v) <= _FLOAT32_MAX for v in sensor):
+    if not all(abs(v) <= checks.FLOAT32_MAX for v in sensor):
         return False, "the sensor's position is not a finite float32 number"
     positions = [p for p in map(_point, positions) if all(map(math.isfinite, p))]
     far = math.hypot(*sensor)

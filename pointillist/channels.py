@@ -130,19 +130,18 @@ class ChannelLayout:
         self._check_shape(shape)
         if not hasattr(image, "array"):                      # numpy (or anything numpy takes)
             return self.check(image)[..., indices]
-        import drjit as dr
-
-        tensor_type = type(image)
-        flat = image.array
         if indices == list(range(shape[2])):
             return image
+        import drjit as dr
+
+        flat = image.array
         height, width, channels = shape
         count = len(indices)
         index_type = dr.uint32_array_t(type(flat))
         slot = dr.arange(index_type, height * width * count)
         table = index_type(indices)
         source = (slot // count) * channels + dr.gather(index_type, table, slot % count)
-        return tensor_type(dr.gather(type(flat), flat, source), shape=(height, width, count))
+        return type(image)(dr.gather(type(flat), flat, source), shape=(height, width, count))
 
     def split(self, image: Any) -> SplitImage:
         """Cut ``image`` into colour (H, W, 1|3), alpha (H, W) and AOV layers (name -> (H, W)).

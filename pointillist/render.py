@@ -174,7 +174,8 @@ def _warn_nonfinite(image, layout) -> None:
         import drjit as dr
 
         values = colour.array
-        flags = dr.select(dr.isfinite(values), 0, 1) + dr.zeros(dr.uint32_array_t(type(values)), dr.width(values))
+        counter = dr.uint32_array_t(type(values))
+        flags = dr.select(dr.isfinite(values), counter(0), counter(1))
         bad = int(dr.count(dr.block_sum(flags, int(colour.shape[2])) > 0)[0])
     else:
         import numpy as np

@@ -138,12 +138,12 @@ def test_float32_arithmetic_without_numpy_is_numpys(x):
     """The checks' float32 rounding and the camera-relative rule's float32 spacing, written on
     Python floats, give numpy's float32 results (inf beyond the range, NaN kept)."""
     from pointillist.camera_relative import float32_spacing
-    from pointillist.core.checks import _as_float32
+    from pointillist.core.checks import round_to_float32
 
     with np.errstate(over="ignore", invalid="ignore"):
         as32 = float(np.float32(float(x))) if not abs(x) >= 2**1024 else math.copysign(math.inf, x)
         spacing = float(np.spacing(np.float32(abs(float(x))))) if not abs(x) >= 2**1024 else math.nan
-    got = _as_float32(x)
+    got = round_to_float32(x)
     assert got == as32 or (math.isnan(got) and math.isnan(as32))
     got = float32_spacing(x)
     if not math.isfinite(as32):

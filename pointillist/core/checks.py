@@ -12,22 +12,23 @@ that ``1e-50`` is not "> 0" (float32 rounds it to 0). A quantity derived from ch
 (a slope, a reciprocal, a scale) can still overflow float32; :func:`float32_finite` checks it
 and names the argument it comes from.
 
-==================  ===================================================================
-Function            Accepts
-==================  ===================================================================
-``real``            int or float (numpy scalars too, not bool) that float32 holds, in bounds
-``real_array``      an array of such reals (a kernel, a table)
-``float32_finite``  a float derived from checked arguments: finite in float32
-``integer``         int (numpy integers too, not bool), in bounds
-``integers``        a sequence of such ints (a shape, a size), of a given length
-``boolean``         bool (numpy bool too)
-``choice``          one of a fixed set of values (of the same type)
-``uint32``          int in 0..2^32-1 (Mitsuba's and Dr.Jit's 32-bit counters)
-``seed``            a :func:`uint32` named ``seed``
-``numbers_text``    several reals written in one string: ``"1,2,3"``, ``"1 2 3"``, ``"1, 2, 3"``
-``spacing``         a volume's voxel spacing written as text: three positive numbers
-``exr_attribute``   an EXR header attribute: a name not OpenEXR's own, an int, float or str
-==================  ===================================================================
+====================  ===================================================================
+Function              Accepts
+====================  ===================================================================
+``real``              int or float (numpy scalars too, not bool) that float32 holds, in bounds
+``real_array``        an array of such reals (a kernel, a table)
+``float32_finite``    a float derived from checked arguments: finite in float32
+``integer``           int (numpy integers too, not bool), in bounds
+``integers``          a sequence of such ints (a shape, a size), of a given length
+``boolean``           bool (numpy bool too)
+``choice``            one of a fixed set of values (of the same type)
+``uint32``            int in 0..2^32-1 (Mitsuba's and Dr.Jit's 32-bit counters)
+``seed``              a :func:`uint32` named ``seed``
+``numbers_text``      several reals written in one string: ``"1,2,3"``, ``"1 2 3"``, ``"1, 2, 3"``
+``spacing``           a volume's voxel spacing written as text: three positive numbers
+``exr_attribute``     an EXR header attribute: a name not OpenEXR's own, an int, float or str
+``round_to_float32``  not a check: a real rounded to the nearest float32 (inf beyond its range)
+====================  ===================================================================
 
 Examples
 --------
@@ -62,7 +63,7 @@ if TYPE_CHECKING:  # numpy is imported only by the checks of arrays: a command's
 
 __all__ = ["FLOAT32_MAX", "UINT32_MAX", "real", "real_array", "float32_finite", "integer", "integers", "boolean",
            "choice", "uint32", "seed", "available_memory", "memory", "EXR_RESERVED", "EXR_INT_RANGE", "exr_attribute",
-           "numbers_text", "spacing"]
+           "numbers_text", "spacing", "round_to_float32"]
 
 #: The largest finite float32 (``numpy.finfo(numpy.float32).max``, 2^128 - 2^104).
 FLOAT32_MAX = math.ldexp(2.0 - 2.0**-23, 127)
@@ -93,8 +94,9 @@ def _is_bool(value: Any) -> bool:
     return isinstance(value, (bool, _numpy_type("bool_")))
 
 
-def _as_float32(value: float) -> float:
-    """``value`` rounded to float32 (inf beyond its range), as a Python float."""
+def round_to_float32(value: float) -> float:
+    """``value`` rounded to the nearest float32 (inf beyond its range), as a Python float; the
+    float32 cast of numpy and of Dr.Jit's kernels, without numpy."""
     try:
         return struct.unpack("<f", struct.pack("<f", float(value)))[0]
     except OverflowError:  # rounds beyond float32's largest (or an int beyond float64)
@@ -151,7 +153,7 @@ def real(value: Any, name: str, *, low: float | None = None, high: float | None 
             from None
     if math.isnan(number) or (math.isinf(number) and not allow_inf):
         raise ValueError(f"{name}: expected a finite number, got {number:g}")
-    rounded = _as_float32(number) if float32 else number
+    rounded = round_to_float32(number) if float32 else number
     if math.isfinite(number) and not math.isfinite(rounded):
         raise ValueError(f"{name}: expected a number float32 can hold (|x| <= {FLOAT32_MAX:g}), got {number:g}")
     for bound, is_low, is_open in ((low, True, low_open), (high, False, high_open)):
@@ -221,7 +223,7 @@ def float32_finite(value: float, name: str, quantity: str) -> float:
     ...
     ValueError: r2: the slope (s2 - s1) / (r2 - r1) is 2.55e+42, beyond float32 (|x| <= 3.40282e+38)
     """
-    if not math.isfinite(_as_float32(value)):
+    if not math.isfinite(round_to_float32(value)):
         raise ValueError(f"{name}: {quantity} is {value:g}, beyond float32 (|x| <= {FLOAT32_MAX:g})")
     return value
 
@@ -413,15 +415,13 @@ def exr_attribute(key: Any, value: Any) -> int | float | str:
     ...
     ValueError: metadata: 'channels' is a reserved EXR attribute name
     """
-    import numbers
-
     if not isinstance(key, str) or not key:
         raise TypeError(f"metadata: keys must be non-empty str, got {key!r}")
     if key in EXR_RESERVED:
         raise ValueError(f"metadata: {key!r} is a reserved EXR attribute name")
     if isinstance(value, str):
         return value
-    if isinstance(value, bool) or type(value).__name__ == "bool_":
+    if _is_bool(value):
         return int(value)
     if isinstance(value, numbers.Integral):
         value = int(value)
