@@ -2,7 +2,8 @@
 
 One place that turns what users pass (numpy arrays of any real dtype, Python
 sequences, Dr.Jit tensors of the LLVM backend with or without AD) into the
-``drjit.llvm.TensorXf`` the operations compute on, and checks the shape; plus the
+``drjit.llvm.ad.TensorXf`` the operations compute on (Mitsuba's ``mi.TensorXf`` in the
+``llvm_ad_rgb`` variant: an AD tensor, so derivatives flow through them), and checks the shape; plus the
 small Dr.Jit tools several modules need: :func:`opaque_scalar` (a cached opaque
 scalar) and :func:`divmod_u32` (integer division of UInt32 lanes without vector
 integer division).
@@ -15,13 +16,13 @@ from typing import Any, Callable, TypeVar
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, TensorXf, TensorXu8, UInt8
+from drjit.llvm.ad import Float, TensorXf, TensorXu8, UInt8
 
 from pointillist.core import checks
 
-__all__ = ["as_tensor", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared", "check_shape", "is_uint8",
-           "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning", "replace_non_finite",
-           "warn_non_finite"]
+__all__ = ["as_tensor", "refuse_gradients", "held_extreme", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared",
+           "check_shape", "is_uint8", "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning",
+           "replace_non_finite", "warn_non_finite"]
 
 
 class NonFiniteWarning(RuntimeWarning):
@@ -42,7 +43,7 @@ def replace_non_finite(values: Any, white: Any, counter: Any = None) -> tuple[An
     >>> clean.numpy().tolist(), int(n[0])
     ([1.0, 0.0, 255.0, 0.0], 3)
     """
-    from drjit.llvm import UInt32
+    from drjit.llvm.ad import UInt32
 
     bad = ~dr.isfinite(values)
     count = dr.zeros(UInt32, 1) if counter is None else counter
@@ -65,7 +66,11 @@ def warn_non_finite(result: Any, counter: Any, where: str, stacklevel: int = 4) 
 
 def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | None = None,
               allow_empty: bool = False) -> TensorXf:
-    """Return ``image`` as a float32 ``drjit.llvm.TensorXf`` of shape (H, W) or (H, W, C).
+    """Return ``image`` as a float32 ``drjit.llvm.ad.TensorXf`` of shape (H, W) or (H, W, C).
+
+    Gradients are kept: an AD tensor that tracks gradients comes back as itself (or cast to
+    float32, a cast Dr.Jit differentiates), so the operations built on it are differentiable
+    where their mathematics is; the others call :func:`refuse_gradients` first.
 
     Parameters
     ----------
@@ -93,7 +98,7 @@ def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | No
     elif dr.is_tensor_v(image):
         if dr.backend_v(image) != dr.JitBackend.LLVM:
             raise TypeError(f"{name}: expected a numpy array or an LLVM Dr.Jit tensor, got {type(image).__name__}")
-        tensor = TensorXf(dr.detach(image)) if dr.is_diff_v(image) else TensorXf(image)
+        tensor = TensorXf(image)          # a cast Dr.Jit differentiates (float64 -> float32 keeps gradients)
     else:
         try:
             array = np.asarray(image)
@@ -108,6 +113,66 @@ def as_tensor(image: Any, name: str = "image", *, channels: tuple[int, ...] | No
         return tensor
     check_shape(tuple(tensor.shape), name, channels, allow_empty)
     return tensor
+
+
+def refuse_gradients(image: Any, operation: str, name: str = "image") -> None:
+    """Raise ``TypeError`` if ``image`` is a Dr.Jit array that tracks gradients.
+
+    For the operations whose result is piecewise constant in the input (quantisation,
+    equalisation, thresholds, medians, dithering): their derivative is zero almost everywhere and
+    undefined at the steps, so an optimisation through them would silently stop; saying so is
+    better than returning a detached result.
+
+    Examples
+    --------
+    >>> import drjit as dr
+    >>> from drjit.llvm.ad import TensorXf
+    >>> t = TensorXf([0.5, 0.25], shape=(1, 2))
+    >>> refuse_gradients(t, "dither")           # no gradients tracked: nothing to say
+    >>> dr.enable_grad(t)
+    >>> refuse_gradients(t, "dither")
+    Traceback (most recent call last):
+    ...
+    TypeError: image: dither is not differentiable (piecewise constant), but the input tracks gradients; ...
+    """
+    if dr.is_diff_v(image) and dr.grad_enabled(image):
+        raise TypeError(f"{name}: {operation} is not differentiable (piecewise constant), but the input tracks "
+                        "gradients; detach it first (drjit.detach)")
+
+
+def held_extreme(values: Any, extreme: float, usable: Any = None) -> Any:
+    """The element of ``values`` (a Dr.Jit array that tracks gradients) equal to ``extreme``, as a
+    one-element array of the same type: its value is ``extreme``, its derivative that element's.
+
+    For the operations that use the image's own minimum or maximum (normalisation ranges, white
+    points): the derivative of ``max(v)`` is that of the element holding it. On a tie the first
+    such element gets it (Dr.Jit's ``max`` would give it to every tied element, counting it as
+    often as there are ties). ``usable`` (a boolean numpy mask) restricts the search.
+
+    Examples
+    --------
+    >>> import drjit as dr
+    >>> from drjit.llvm.ad import Float
+    >>> v = Float(1.0, 3.0, 3.0)
+    >>> dr.enable_grad(v)
+    >>> top = held_extreme(v, 3.0)
+    >>> dr.backward(top)
+    >>> dr.grad(v).numpy().tolist()
+    [0.0, 1.0, 0.0]
+    """
+    if not (dr.is_array_v(values) and dr.depth_v(values) == 1):
+        raise TypeError(f"values: expected a flat Dr.Jit array, got {type(values).__name__}")
+    extreme = checks.real(extreme, "extreme", allow_inf=True)
+    host = np.asarray(dr.detach(values))
+    found = host == host.dtype.type(extreme)
+    if usable is not None:
+        found &= np.asarray(usable, dtype=bool)
+    at = np.flatnonzero(found)
+    if not at.size:
+        raise ValueError(f"extreme: {extreme!r} is not a value of the array")
+    from drjit.llvm.ad import UInt32
+
+    return dr.gather(type(values), values, UInt32(int(at[0])))
 
 
 def check_shape(shape: tuple[int, ...], name: str = "image", channels: tuple[int, ...] | None = None,
@@ -172,8 +237,9 @@ def eager_if_shared(function: _F) -> _F:
 
 
 def is_uint8(image: Any) -> bool:
-    """True for 8-bit images: a numpy ``uint8`` array or a ``drjit.llvm.TensorXu8`` (read by the fast
-    paths as bytes, without a float32 copy; the tone and dither operations return uint8 for them).
+    """True for 8-bit images: a numpy ``uint8`` array or an LLVM ``TensorXu8`` (``drjit.llvm`` or
+    ``drjit.llvm.ad``; read by the fast paths as bytes, without a float32 copy; the tone and dither
+    operations return uint8 for them).
 
     Examples
     --------
@@ -182,7 +248,10 @@ def is_uint8(image: Any) -> bool:
     >>> is_uint8(np.zeros((2, 2), np.uint8)), is_uint8(TensorXu8(np.zeros((2, 2), np.uint8))), is_uint8(np.zeros(2))
     (True, True, False)
     """
-    return (isinstance(image, np.ndarray) and image.dtype == np.uint8) or isinstance(image, TensorXu8)
+    if isinstance(image, np.ndarray):
+        return image.dtype == np.uint8
+    return (dr.is_tensor_v(image) and dr.type_v(image) == dr.VarType.UInt8       # with or without AD
+            and dr.backend_v(image) == dr.JitBackend.LLVM)
 
 
 def uint8_array(image: Any, name: str = "image") -> np.ndarray:

@@ -1,7 +1,7 @@
 """Colour: RGB <-> HSV, Rec. 709 luminance and the sRGB transfer curves (:ref:`conventions-colour`).
 
 Every function takes a numpy array or a Dr.Jit tensor and returns a
-``drjit.llvm.TensorXf``; the work is one fused Dr.Jit kernel per call (no
+``drjit.llvm.ad.TensorXf``; the work is one fused Dr.Jit kernel per call (no
 Python loop over pixels), and per-call scalars are opaque so that kernels are
 compiled once and then reused.
 
@@ -35,11 +35,20 @@ from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Float, UInt8, UInt32
+from drjit.llvm.ad import Array3f, Float, UInt8, UInt32
+from pointillist.imaging.arrays import (
+    TensorXf,
+    as_tensor,
+    check_shape,
+    eager_if_shared,
+    is_uint8,
+    opaque_scalar,
+    replace_non_finite,
+    uint8_array,
+    warn_non_finite,
+)
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import (TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar,
-                                        replace_non_finite, uint8_array, warn_non_finite)
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",
@@ -171,7 +180,7 @@ def rgb_to_hsv(image: Any, *, max_value: float = 1.0) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         (H, W, 3): H in [0, 360) degrees, S = (max - min) / max in [0, 1],
         V = max(R, G, B). Greys (max = min) have H = 0 and S = 0; black has
         S = 0. This is OpenCV's ``cvtColor(..., COLOR_RGB2HSV)`` for float32
@@ -211,7 +220,7 @@ def hsv_to_rgb(image: Any, *, max_value: float = 1.0) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         (H, W, 3) RGB; the inverse of :func:`rgb_to_hsv` (round trip to float32
         rounding). S = 0 gives grey (V, V, V); V = 0 gives black.
 
@@ -257,7 +266,7 @@ def adjust_hsv(image: Any, *, hue: float = 0.0, saturation: float = 1.0, value: 
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         (H, W, 3) RGB. hue = 0, saturation = value = 1 is the identity (to float32
         rounding); greys keep S = 0 whatever the hue shift.
 
@@ -306,7 +315,7 @@ def luminance(image: Any, *, max_value: float = 1.0) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         (H, W). NaN and -inf components count as 0, +inf as ``max_value``, with one
         ``NonFiniteWarning``. 8-bit input (numpy ``uint8``, ``TensorXu8``) gives the values of its
         float32 conversion, read from the bytes without a float32 copy.
@@ -400,7 +409,7 @@ def srgb_encode(image: Any) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Same shape, encoded values (0 -> 0, 1 -> 1). Outside 0..1 the curve
         is extended as colour-science does: negative values stay on the linear
         segment, values above 1 follow the power segment. NaN and -inf become 0,
@@ -432,7 +441,7 @@ def srgb_decode(image: Any) -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Same shape, linear values; negative values stay on the linear segment.
         NaN and -inf become 0, +inf white (1), with one ``NonFiniteWarning``.
 

@@ -20,15 +20,35 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float, UInt8, UInt32
+from drjit.llvm.ad import Bool, Float, UInt8, UInt32
+from pointillist.imaging.arrays import (
+    TensorXf,
+    TensorXu8,
+    as_tensor,
+    eager_if_shared,
+    held_extreme,
+    is_uint8,
+    opaque_scalar,
+    refuse_gradients,
+    to_uint8,
+    uint8_array,
+)
+from pointillist.imaging.median_networks import median_of
+from pointillist.imaging.neighbourhood import (
+    BORDERS,
+    PADDED_BORDERS,
+    Taps,
+    Window,
+    check_border,
+    finite_extrema,
+    select_max,
+    select_min,
+    window_apply,
+    window_result,
+)
+from pointillist.imaging.rank import radix_median
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar,
-                                        to_uint8, uint8_array)
-from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
-                                               select_max, select_min, window_apply, window_result)
-from pointillist.imaging.median_networks import median_of
-from pointillist.imaging.rank import radix_median
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",
@@ -88,6 +108,19 @@ def _check_size(size: Any) -> int:
     return int(size)
 
 
+def _extremes_differentiably(values: Float, low: float, high: float, scale: float,
+                             mask: Bool | None) -> tuple[Float, Float]:
+    """``min`` and ``255 / (max - min)`` with the values computed on the host (the same image as
+    without gradients) and the derivatives of the pixels holding them (:func:`held_extreme`), as
+    numpy's ``(v - v.min()) * 255 / (v.max() - v.min())`` would differentiate."""
+    usable = np.isfinite(np.asarray(dr.detach(values)))
+    if mask is not None:
+        usable &= np.asarray(mask)
+    v_min, v_max = held_extreme(values, low, usable), held_extreme(values, high, usable)
+    return (dr.replace_grad(dr.opaque(Float, low), v_min),
+            dr.replace_grad(dr.opaque(Float, scale), 255.0 / (v_max - v_min)))
+
+
 def _rescale(values: Float, bounds: tuple[float, float] | None, mask: Bool | None,
              fill: Float | None) -> Float:
     """(v - min) * 255 / (max - min) where ``mask``; non-finite and constant cases per `normalize`."""
@@ -95,7 +128,10 @@ def _rescale(values: Float, bounds: tuple[float, float] | None, mask: Bool | Non
     scale = 255.0 / (high - low) if high > low else 0.0
     if not math.isfinite(scale):       # max - min underflows to a subnormal
         scale = 255.0 / (np.float64(high) - np.float64(low))
-    shifted = (values - dr.opaque(Float, low)) * dr.opaque(Float, scale)
+    low_v, scale_v = dr.opaque(Float, low), dr.opaque(Float, scale)
+    if dr.grad_enabled(values) and high > low:
+        low_v, scale_v = _extremes_differentiably(values, low, high, scale, mask)
+    shifted = (values - low_v) * scale_v
     scaled = select_min(select_max(shifted, Float(0.0)), Float(255.0))
     scaled = dr.select(dr.isinf(values), 255.0, scaled)
     scaled = dr.select(dr.isnan(values), values, scaled)
@@ -149,7 +185,7 @@ def correlate(image: Any, kernel: Any, *, border: str = "zero", normalize: bool 
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Same shape as ``image`` (``crop``: ``(H - kh + 1, W - kw + 1[, C])``).
 
     Raises
@@ -222,7 +258,7 @@ def normalize(image: Any, *, absolute: bool = True, ring: int | tuple[int, int] 
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Same shape, values in 0..255.
 
     Notes
@@ -338,7 +374,7 @@ def sobel(image: Any, *, border: str = "zero") -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         The magnitude (:func:`gradient` gives ``gx`` and ``gy`` too).
 
     Notes
@@ -410,7 +446,7 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Same shape, values in {0, max_value}. A constant image (or all zeros) has no
         crossings; NaN is neither above nor below zero.
 
@@ -421,6 +457,7 @@ def zero_crossings(image: Any, *, connectivity: int = 8, max_value: float = 255.
     >>> np.asarray(zero_crossings(np.array([[1.0, -1.0, 0.0, 2.0]]))).tolist()
     [[255.0, 0.0, 0.0, 0.0]]
     """
+    refuse_gradients(image, "zero_crossings")
     connectivity = checks.choice(connectivity, "connectivity", (4, 8))
     max_value = checks.real(max_value, "max_value")
     tensor = as_tensor(image)
@@ -459,7 +496,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape as ``image``, values in {0, max_value}. NaN compares false and becomes 0.
 
     Examples
@@ -471,6 +508,7 @@ def threshold(image: Any, level: float = 128, *, max_value: float = 255.0) -> Te
     >>> np.asarray(threshold(np.array([[0, 127], [128, 255]], np.uint8))).tolist()
     [[0, 0], [255, 255]]
     """
+    refuse_gradients(image, "threshold")
     level = checks.real(level, "level")
     max_value = checks.real(max_value, "max_value")
     if is_uint8(image):  # the bytes widened in the kernel, the result written as bytes
@@ -522,7 +560,7 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
 
     Notes
     -----
@@ -538,6 +576,7 @@ def median(image: Any, size: int = 3, *, border: str = "clamp") -> TensorXf:
     >>> np.asarray(median(img))[1, 1].item()
     10.0
     """
+    refuse_gradients(image, "median")
     size = _check_size(size)
     border = check_border(border)
     tensor = as_tensor(image)

@@ -77,13 +77,13 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Float64, UInt32
-
-from pointillist.core import checks
-from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, to_numpy
+from drjit.llvm.ad import Float, Float64, UInt32
+from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, refuse_gradients, to_numpy
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_decode
 from pointillist.imaging.neighbourhood import select_max, select_min
 from pointillist.imaging.tone import ACES_CONSTANTS
+
+from pointillist.core import checks
 
 __all__ = ["FLIP_CONSTANTS", "CSF_CONSTANTS", "TONEMAPPERS", "DEFAULT_PPD", "FlipResult", "flip",
            "pixels_per_degree", "hdr_exposure_range", "tonemapper_x_max"]
@@ -226,6 +226,7 @@ def _exposure_range(rgb: np.ndarray, tonemapper: str) -> tuple[float, float]:
 
 def _rgb_array(image: Any, name: str) -> np.ndarray:
     """``image`` as a C-contiguous float32 (H, W, 3) numpy array (grey repeated), finite values only."""
+    refuse_gradients(image, "flip (computed partly on the host)")
     tensor = as_tensor(image, name, channels=(1, 3))
     array = to_numpy(tensor)
     if array.ndim == 2:

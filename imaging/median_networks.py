@@ -5,7 +5,7 @@ uses them up to ``MEDIAN_NETWORK_MAX_SIZE``; larger windows use radix selection,
 from __future__ import annotations
 
 import drjit as dr
-from drjit.llvm import Float
+from drjit.llvm.ad import Float
 
 __all__ = ["MEDIAN9", "MEDIAN25", "MEDIAN_NETWORKS", "batcher", "exchange", "median_of"]
 

@@ -56,8 +56,7 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Bool, Float, UInt32
-
+from drjit.llvm.ad import Bool, Float, Int32, UInt32
 from pointillist.imaging.arrays import TensorXf
 
 __all__ = ["BORDERS", "PADDED_BORDERS", "Taps", "Window", "check_border", "window_apply", "window_result",
@@ -133,6 +132,21 @@ class Window:
         self.C = shape[2] if len(shape) == 3 else 1
         self.N = self.H * self.W * self.C
         self.ry, self.rx = ry, rx
+        index = dr.arange(UInt32, self.N)
+        pixel = index // self.C if self.C > 1 else index
+        y = pixel // self.W
+        x = pixel - y * self.W
+        self.x, self.y = x, y
+        if self.has_interior:
+            self.inside = (y >= ry) & (y < self.H - ry) & (x >= rx) & (x < self.W - rx)
+        else:
+            self.inside = dr.zeros(Bool, self.N)
+        #: An input that tracks gradients is read with gathers (differentiable) instead of
+        #: through the host-side padded copy: see :meth:`mapped_taps`.
+        self.gathered = bool(dr.grad_enabled(tensor))
+        if self.gathered:
+            self.values = tensor.array
+            return
         self.source = np.asarray(tensor).reshape(-1)
         self.margin = (ry * self.W + rx) * self.C
         padded = _padded_buffer(self.N + 2 * self.margin)
@@ -144,25 +158,40 @@ class Window:
             padded[self.margin - ry * row:self.margin] = np.tile(self.source[:row], ry)
             padded[self.margin + self.N:self.margin + self.N + ry * row] = np.tile(self.source[-row:], ry)
         self.padded = padded
-        index = dr.arange(UInt32, self.N)
-        pixel = index // self.C if self.C > 1 else index
-        y = pixel // self.W
-        x = pixel - y * self.W
-        self.x, self.y = x, y
-        if self.has_interior:
-            self.inside = (y >= ry) & (y < self.H - ry) & (x >= rx) & (x < self.W - rx)
-        else:
-            self.inside = dr.zeros(Bool, self.N)
 
     @property
     def has_interior(self) -> bool:
         return self.H > 2 * self.ry and self.W > 2 * self.rx
 
     def tap(self, dy: int, dx: int) -> Float:
+        if self.gathered:           # zeros outside the image (only the interior's taps are used)
+            return self.mapped_taps([(dy, dx)], "constant")[(dy, dx)]
         start = self.margin + (dy * self.W + dx) * self.C
         return Float(self.padded[start:start + self.N])
 
+    def mapped_taps(self, offsets: Sequence[tuple[int, int]], border: str) -> Taps:
+        """Taps for *every* pixel under a padded border mode, read with gathers from the image.
+
+        The path of inputs that track gradients (a gather is differentiable; the padded copy goes
+        through the host): row and column ``y + dy``, ``x + dx`` are mapped into the image by the
+        same rule as the ring (:func:`_source_index`), ``constant`` reading 0 outside.
+        """
+        H, W, C = self.H, self.W, self.C
+        channel = dr.arange(UInt32, self.N) % C if C > 1 else UInt32(0)
+        taps = {}
+        for dy, dx in offsets:
+            rows = _source_index(np.arange(H) + dy, H, border).astype(np.int64)
+            cols = _source_index(np.arange(W) + dx, W, border).astype(np.int64)
+            row = dr.gather(Int32, Int32(rows.astype(np.int32)), self.y)
+            col = dr.gather(Int32, Int32(cols.astype(np.int32)), self.x)
+            valid = (row >= 0) & (col >= 0)
+            element = (UInt32(row) * W + UInt32(col)) * C + channel
+            taps[(dy, dx)] = dr.gather(Float, self.values, element, valid)
+        return taps
+
     def taps(self, offsets: Sequence[tuple[int, int]]) -> Taps:
+        if self.gathered:
+            return self.mapped_taps(offsets, "constant")
         return {d: self.tap(*d) for d in offsets}
 
     def clamped_taps(self, offsets: Sequence[tuple[int, int]]) -> Taps:
@@ -172,6 +201,8 @@ class Window:
         is replaced, with selects on ``x``, by the tap that reads the edge column instead
         (``dx' = clamp(x + dx, 0, W - 1) - x``), so no ring pass is needed.
         """
+        if self.gathered:
+            return self.mapped_taps(offsets, "clamp")
         taps = {}
         for dy, dx in offsets:
             value = self.tap(dy, dx)
@@ -241,10 +272,13 @@ def window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Seque
     """
     clamp = border == "clamp"
     window = Window(tensor, ry, rx, edge=clamp)
-    outs = list(combine(window.clamped_taps(offsets) if clamp else window.taps(offsets)))
+    padded = border in PADDED_BORDERS          # every pixel computed (no zero / keep / crop ring)
+    if window.gathered:                        # every pixel's taps under the border mode at once
+        outs = list(combine(window.mapped_taps(offsets, border if padded else "constant")))
+    else:
+        outs = list(combine(window.clamped_taps(offsets) if clamp else window.taps(offsets)))
     if absolute:
         outs[0] = dr.abs(outs[0])
-    padded = border in PADDED_BORDERS          # every pixel computed (no zero / keep / crop ring)
     if not padded:
         fill = window.tap(0, 0) if border == "keep" else Float(0.0)
         fills = [fill] * len(outs)
@@ -252,7 +286,7 @@ def window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Seque
             fills[0] = Float(math.nan)
         outs = [dr.select(window.inside, o, f) for o, f in zip(outs, fills)]
     dr.eval(*outs)
-    if padded and not clamp:            # clamp's ring is already right (`Window.clamped_taps`)
+    if padded and not clamp and not window.gathered:   # clamp's ring is already right (`clamped_taps`)
         elements, ring = window.ring_taps(border, offsets)
         if dr.width(elements):
             values = list(combine(ring))
@@ -261,7 +295,7 @@ def window_apply(tensor: TensorXf, ry: int, rx: int, border: str, offsets: Seque
             for out, value in zip(outs, values):
                 dr.scatter(out, value, elements)
             dr.eval(*outs)
-    bounds = finite_extrema(outs[0]) if reduce else None
+    bounds = finite_extrema(dr.detach(outs[0])) if reduce else None
     return outs, window, bounds
 
 
@@ -351,4 +385,12 @@ def window_result(values: Float, window: Window, border: str) -> TensorXf:
     if H <= 2 * ry or W <= 2 * rx:
         raise ValueError(f"border='crop': the image ({H}x{W}) is smaller than the window "
                          f"({2 * ry + 1}x{2 * rx + 1}); nothing is left")
+    if dr.grad_enabled(values):        # the same crop with a (differentiable) gather
+        C = window.shape[2] if len(window.shape) == 3 else 1
+        h, w = H - 2 * ry, W - 2 * rx
+        index = dr.arange(UInt32, h * w * C)
+        pixel, channel = index // C, index % C
+        y, x = pixel // w, pixel % w
+        kept = dr.gather(Float, values, ((y + ry) * W + x + rx) * C + channel)
+        return TensorXf(kept, (h, w) + tuple(window.shape[2:]))
     return TensorXf(np.ascontiguousarray(np.asarray(tensor)[ry:H - ry, rx:W - rx]))

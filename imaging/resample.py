@@ -42,10 +42,10 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Int32, UInt32, UInt64
+from drjit.llvm.ad import Float, Int32, UInt32, UInt64
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["INTERPOLATIONS", "KEYS_A", "KEYS_A_RANGE", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
 
@@ -166,7 +166,7 @@ def resize(image: Any, size: tuple[int, int], method: str = "bilinear", *, a: fl
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         (height, width) or (height, width, C).
 
     Notes
@@ -274,7 +274,7 @@ def sample(image: Any, x: Any, y: Any, method: str = "bilinear", *, a: float = K
 
     Returns
     -------
-    drjit.llvm.TensorXf
+    drjit.llvm.ad.TensorXf
         Shape ``broadcast(x, y).shape`` (+ ``(C,)`` for colour); a 0-d tensor for scalars.
 
     Examples

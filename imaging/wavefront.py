@@ -42,7 +42,7 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Float64, Int32, UInt8, UInt32
+from drjit.llvm.ad import Float, Float64, Int32, UInt8, UInt32
 
 __all__ = ["BLOCK", "blocked", "clip_intensity", "packet_width", "wavefront_schedule", "verified_lanes",
            "diffuse_wavefront"]
@@ -285,8 +285,8 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
     memory = raw[start:start + slots * width]
     errors_in, errors_out = Float64(memory), Float64(memory)
     out = dr.empty(shown_type, height * width)
-    packets = dr.llvm.ArrayXu8 if eight_bit else dr.llvm.ArrayXf
-    source_packets = dr.llvm.ArrayXu8 if isinstance(values, UInt8) else dr.llvm.ArrayXf
+    packets = dr.llvm.ad.ArrayXu8 if eight_bit else dr.llvm.ad.ArrayXf
+    source_packets = dr.llvm.ad.ArrayXu8 if isinstance(values, UInt8) else dr.llvm.ad.ArrayXf
 
     lane = dr.arange(Int32, lanes)
     H = dr.opaque(Int32, height)
@@ -316,7 +316,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
             source = dr.select(source < 0, source + S, source)
             ahead = b + 1
             mask = live & (y >= dy) & (ahead >= 0) & (ahead < NB)
-            fresh = _packet(dr.llvm.ArrayXf64, errors_in, UInt32(source * NB + ahead), mask)
+            fresh = _packet(dr.llvm.ad.ArrayXf64, errors_in, UInt32(source * NB + ahead), mask)
             full.append(carried + fresh)
         read = _packet(source_packets, values, UInt32(y * NB + b), valid)
         errors, shown_block = [], []
@@ -334,7 +334,7 @@ def _diffuse_blocks(values, height: int, width: int, plan: dict[str, Any],
             errors.append(e)
             shown_block.append(shown)
         if rows:
-            dr.scatter(errors_out, dr.llvm.ArrayXf64(errors), UInt32(slot * NB + b), valid)
+            dr.scatter(errors_out, dr.llvm.ad.ArrayXf64(errors), UInt32(slot * NB + b), valid)
         dr.scatter(out, packets(shown_block), UInt32(y * NB + b), valid)
         windows = [block[BLOCK:] for block in full]
         t, y, slot, own = _next_band(t, y, slot, own, T, S, lanes)

@@ -54,6 +54,8 @@ def _volume_files(folder: Path) -> dict[str, Path]:
 
 def _values(folder: Path) -> dict[str, list]:
     """Candidate valid values of each required parameter, by name (the first that works is used)."""
+    from drjit.llvm.ad import Float
+
     from pointillist.imaging.dither import bayer
     from pointillist.imaging.io import write_exr
 
@@ -64,7 +66,9 @@ def _values(folder: Path) -> dict[str, list]:
         "gamma": [2.2], "r1": [30.0], "s1": [10.0], "r2": [200.0], "s2": [240.0], "levels": [4],
         "table": [np.arange(256)], "n": [4], "template": [bayer(4)], "kernel": [np.ones((3, 3)) / 9],
         "size": [(4, 6)], "x": [np.array([1.5, 2.0])], "y": [np.array([2.5, 0.0])], "t": [np.array([0.5])],
-        "shape": [(8, 8)], "level": [40.0], "width": [400.0], "values": [np.array([0.0, 40.0, 500.0])],
+        "shape": [(8, 8)], "level": [40.0], "width": [400.0],
+        "values": [np.array([0.0, 40.0, 500.0]), Float(0.0, 40.0, 500.0)],
+        "extreme": [40.0],
         "vector": [np.array([0.9, 0.1, 0.0])], "directions": [np.eye(3)],
         "path": [files["npy"], files["nifti"], folder / "image.exr"], "folder": [files["dicom"]],
         "spectrum": ["radial_power_spectrum"],

@@ -8,7 +8,7 @@ import warnings
 import drjit as dr
 import numpy as np
 import pytest
-from drjit.llvm import TensorXf
+from drjit.llvm.ad import TensorXf
 
 from pointillist.imaging import as_tensor, colour, dither, filters, resample, tone
 
@@ -87,7 +87,8 @@ def test_numpy_float32_is_shared_and_other_dtypes_convert():
     assert np.asarray(converted).tolist() == [[200.0, 3.0]]
 
 
-def test_drjit_inputs_stay_lazy_and_ad_tensors_are_detached():
+def test_drjit_inputs_stay_lazy_and_ad_tensors_keep_their_gradients():
+    import drjit.llvm
     import mitsuba as mi
 
     import pointillist
@@ -95,7 +96,15 @@ def test_drjit_inputs_stay_lazy_and_ad_tensors_are_detached():
     pointillist.setup()
     ad = mi.TensorXf(np.ones((2, 2, 3), np.float32))
     dr.enable_grad(ad)
-    tensor = as_tensor(ad)
+    assert as_tensor(ad) is ad and dr.grad_enabled(as_tensor(ad))     # Mitsuba's tensor is ours
+    float64 = drjit.llvm.ad.TensorXf64(np.ones((2, 2), np.float64))
+    dr.enable_grad(float64)
+    cast = as_tensor(float64)
+    assert type(cast) is TensorXf and dr.grad_enabled(cast)              # the cast is differentiated
+    dr.backward(dr.sum(cast * 3.0, axis=None))
+    np.testing.assert_array_equal(np.asarray(dr.grad(float64)), np.full((2, 2), 3.0))
+    plain = drjit.llvm.TensorXf(np.ones((2, 2, 3), np.float32))   # no AD: converted, values kept
+    tensor = as_tensor(plain)
     assert type(tensor) is TensorXf and not dr.grad_enabled(tensor)
     np.testing.assert_array_equal(np.asarray(tensor), np.ones((2, 2, 3), np.float32))
 

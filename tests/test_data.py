@@ -94,3 +94,28 @@ def test_the_mip_guide_runs_as_written_on_the_sample_data(sample, tmp_path):
             assert (folder / output).is_file() or (folder / output.replace(".png", "_000.png")).is_file(), command
     assert (folder / "out" / "turn.gif").is_file() and (folder / "out" / "turn_035.png").is_file()
     assert (folder / "out" / "scene.exr").is_file() and (folder / "out" / "scene.png").is_file()
+
+
+def test_the_differentiable_guide_runs_as_written_on_the_sample_data(sample, tmp_path):
+    """The inverse-rendering guide's Python block, as a file run next to ``data/``: its gradient check
+    agrees (reverse mode against the central difference within 0.1 %) and every colour it recovers
+    is within 0.015 of the scene's (RMSE over the nine components below 0.01)."""
+    import re
+    import shutil
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    text = (ROOT / "docs" / "guides" / "differentiable.md").read_text()
+    block = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    shutil.copytree(sample, tmp_path / "data")
+    (tmp_path / "guide.py").write_text(block)
+    done = subprocess.run([sys.executable, "guide.py"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    check = re.search(r"reverse mode (\S+), central difference (\S+)", done.stdout)
+    assert float(check.group(1)) == pytest.approx(float(check.group(2)), rel=1e-3)
+    found = re.findall(r"found \[([^\]]+)\], truth \[([^\]]+)\]", done.stdout)
+    assert len(found) == 3, done.stdout
+    errors = np.concatenate([np.array(f.split(), float) - np.array(t.split(), float) for f, t in found])
+    assert np.abs(errors).max() < 0.015 and np.sqrt(np.mean(errors ** 2)) < 0.01, done.stdout

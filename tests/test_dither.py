@@ -251,7 +251,7 @@ def test_blocked_schedule_reads_non_finite_and_unaligned_input():
 def test_blocked_and_column_schedules_agree_on_real_and_noisy_images():
     # the old one-column schedule (blocks=False) and the blocked one, bit for bit, on scikit-image's
     # camera (512 x 512, 8-bit) and on a noisy gradient, 8-bit and float, Floyd-Steinberg and Stucki
-    from drjit.llvm import Float, UInt8
+    from drjit.llvm.ad import Float, UInt8
     from skimage import data
 
     camera = data.camera()
@@ -724,7 +724,8 @@ def test_divmod_helper_is_exact():
 def test_every_method_uint8_in_uint8_out(method, shape):
     """uint8 (numpy or TensorXu8) in: uint8 out, equal to the float32 result of the same values
     rounded as the 8-bit writers round it; float in: float32 out."""
-    from drjit.llvm import TensorXu8
+    import drjit.llvm
+    from drjit.llvm.ad import TensorXu8
 
     from pointillist.imaging.io import to_8bit
 
@@ -736,7 +737,7 @@ def test_every_method_uint8_in_uint8_out(method, shape):
     for kwargs in variants:
         as_float = np.asarray(dither.dither(image.astype(np.float32), method, **kwargs))
         assert as_float.dtype == np.float32
-        for source in (image, TensorXu8(image)):
+        for source in (image, TensorXu8(image), drjit.llvm.TensorXu8(image)):     # numpy, AD and plain tensors
             result = dither.dither(source, method, **kwargs)
             assert isinstance(result, TensorXu8), (method, kwargs)
             got = np.asarray(result)

@@ -212,7 +212,7 @@ def test_apply_steps_docstring_and_linear_input():
 def test_steps_take_and_pass_uint8_tensors(tmp_path, rng):
     """8-bit in, 8-bit out: the tone and dither steps hand uint8 tensors to each other and to the
     PNG writer; apply_steps takes a uint8 tensor as input (it computes on float32)."""
-    from drjit.llvm import TensorXu8
+    from drjit.llvm.ad import TensorXu8
 
     from pointillist.post import apply_steps
     from pointillist.steps import steps

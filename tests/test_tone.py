@@ -630,7 +630,7 @@ def test_uint8_lut_rounds_table_as_the_writers():
 
 def test_uint8_tensors_in_and_through_chains():
     """A TensorXu8 (what the 8-bit operations return) is 8-bit input too; float operations take it."""
-    from drjit.llvm import TensorXu8
+    from drjit.llvm.ad import TensorXu8
 
     from pointillist.imaging.filters import sobel
 

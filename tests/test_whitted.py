@@ -204,7 +204,8 @@ def test_total_internal_reflection_preserves_energy(mi, dr):
                    mi.Vector3f(*[d[:, i].astype(np.float32) for i in range(3)]))
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(5, len(ang))
-    L, valid, _ = scene.integrator().sample(scene, sampler, ray, None, mi.Bool(True))
+    from pointillist.plugins.integrators._common import sample_radiance
+    L, valid, _ = sample_radiance(scene.integrator(), scene, sampler, ray)
     L = np.asarray(L)[:, 0] if np.asarray(L).shape[0] == len(ang) else np.asarray(L)[0]
     L = L.reshape(n_angles, reps)
     assert np.all(np.asarray(valid))
@@ -306,7 +307,8 @@ def test_grazing_rays_are_finite(mi, dr):
                        mi.Vector3f(0.0, 0.0, -1.0))
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(0, n)
-        L, _, _ = scene.integrator().sample(scene, sampler, ray, None, mi.Bool(True))
+        from pointillist.plugins.integrators._common import sample_radiance
+        L, _, _ = sample_radiance(scene.integrator(), scene, sampler, ray)
         assert np.all(np.isfinite(np.asarray(L)))
         assert np.asarray(L).min() >= 0
 

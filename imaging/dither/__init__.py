@@ -2,12 +2,12 @@
 pattern and ordered dithering, Bayer and blue-noise masks, and the dither error.
 
 Every operation takes a numpy array or a Dr.Jit tensor of shape ``(H, W)`` or ``(H, W, C)`` with
-intensities on 0..255 and returns a float32 ``drjit.llvm.TensorXf`` whose values are output levels:
+intensities on 0..255 and returns a float32 ``drjit.llvm.ad.TensorXf`` whose values are output levels:
 0 and 255 for 1-bit dithering, or ``k * 255 / (levels - 1)`` for ``levels=N``. Colour images are
 dithered per channel.
 
 8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8`` array or a
-``drjit.llvm.TensorXu8``) every method, :func:`dither` included, returns a ``drjit.llvm.TensorXu8``
+``drjit.llvm.ad.TensorXu8``) every method, :func:`dither` included, returns a ``drjit.llvm.ad.TensorXu8``
 (``np.asarray`` gives uint8): the same levels rounded half to even as the 8-bit writers round them
 (:func:`pointillist.imaging.arrays.to_uint8`; 0 and 255 exactly for 1-bit output, and e.g. 0, 128,
 255 for ``levels=3``). Float input keeps float32 output.
@@ -54,8 +54,17 @@ Examples
 from pointillist.imaging.blue_noise import void_and_cluster
 from pointillist.imaging.dither.diffusion import KERNELS, DiffusionKernel, diffuse, error_diffusion, floyd_steinberg
 from pointillist.imaging.dither.methods import DITHER_METHODS, DitherError, dither, dither_error, dither_options
-from pointillist.imaging.dither.templates import (TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot,
-                                                  halftone, intensity_thresholds, ordered, pattern)
+from pointillist.imaging.dither.templates import (
+                                                  TEMPLATE_4,
+                                                  bayer,
+                                                  blue_noise,
+                                                  blue_noise_mask,
+                                                  clustered_dot,
+                                                  halftone,
+                                                  intensity_thresholds,
+                                                  ordered,
+                                                  pattern,
+)
 from pointillist.imaging.filters import threshold
 
 __all__ = [

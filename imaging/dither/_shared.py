@@ -7,10 +7,19 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, UInt8
+from drjit.llvm.ad import Float, UInt8
+from pointillist.imaging.arrays import (
+    TensorXf,
+    TensorXu8,
+    as_tensor,
+    is_uint8,
+    opaque_scalar,
+    refuse_gradients,
+    to_uint8,
+    uint8_array,
+)
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor, is_uint8, opaque_scalar, to_uint8, uint8_array
 
 _MAX_LEVELS = 256
 
@@ -89,6 +98,7 @@ def _quantiser(levels: int, level: float, linear: bool) -> tuple[np.ndarray, np.
 def _pixels(image: Any) -> tuple[UInt8 | Float, tuple[int, ...]]:
     """The flat pixel values and shape of ``image``: a uint8 image as its bytes (``UInt8``,
     shared, no float32 copy), anything else through :func:`as_tensor` (``Float``)."""
+    refuse_gradients(image, "dithering")
     if is_uint8(image):
         array = uint8_array(image)
         return UInt8(array.reshape(-1)), tuple(array.shape)

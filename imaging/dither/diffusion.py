@@ -6,12 +6,17 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import drjit as dr
-from drjit.llvm import Float, UInt8
-
+from drjit.llvm.ad import Float, UInt8
 from pointillist.imaging.arrays import TensorXf, TensorXu8, eager_if_shared
+from pointillist.imaging.dither._shared import (
+    _check_bool,
+    _check_level,
+    _check_levels,
+    _pixels,
+    _quantiser,
+    _srgb_decode_255,
+)
 from pointillist.imaging.wavefront import clip_intensity, diffuse_wavefront
-from pointillist.imaging.dither._shared import (_check_bool, _check_level, _check_levels, _pixels, _quantiser,
-                                                _srgb_decode_255)
 
 __all__ = ["KERNELS", "DiffusionKernel", "diffuse", "floyd_steinberg", "error_diffusion"]
 
@@ -116,7 +121,7 @@ def diffuse(image: Any, kernel: str = "floyd_steinberg", *, level: float = 128, 
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape as ``image``; values in the ``levels`` output levels (uint8 input: uint8, rounded).
 
     Notes
@@ -182,7 +187,7 @@ def error_diffusion(image: Any, level: float = 128, *, levels: int = 2, linear: 
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape; values in the output levels (uint8 input: uint8, rounded).
 
     Examples

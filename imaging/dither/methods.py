@@ -7,12 +7,11 @@ from functools import lru_cache
 from typing import Any, Callable, NamedTuple
 
 import drjit as dr
-from drjit.llvm import Float64
-
+from drjit.llvm.ad import Float64
 from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor
-from pointillist.imaging.filters import threshold
 from pointillist.imaging.dither.diffusion import KERNELS, diffuse, error_diffusion
-from pointillist.imaging.dither.templates import blue_noise, halftone, ordered, pattern, bayer
+from pointillist.imaging.dither.templates import bayer, blue_noise, halftone, ordered, pattern
+from pointillist.imaging.filters import threshold
 
 __all__ = ["DitherError", "DITHER_METHODS", "dither", "dither_options", "dither_error"]
 
@@ -104,7 +103,7 @@ def dither(image: Any, method: str = "floyd_steinberg", **options: Any) -> Tenso
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         The dithered image (``halftone``: n times larger in each direction); uint8 for uint8 input
         (numpy ``uint8`` or ``TensorXu8``), float32 otherwise.
 

@@ -9,14 +9,29 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, Float64, UInt8, UInt32
+from drjit.llvm.ad import Float, Float64, UInt8, UInt32
+from pointillist.imaging.arrays import (
+    TensorXf,
+    TensorXu8,
+    as_tensor,
+    divmod_u32,
+    eager_if_shared,
+    is_uint8,
+    opaque_scalar,
+    refuse_gradients,
+)
+from pointillist.imaging.dither._shared import (
+    _check_bool,
+    _check_levels,
+    _check_template,
+    _levels_1bit,
+    _pixels,
+    _result,
+    _srgb_decode_255,
+)
+from pointillist.imaging.wavefront import clip_intensity
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, divmod_u32, eager_if_shared, is_uint8,
-                                        opaque_scalar)
-from pointillist.imaging.wavefront import clip_intensity
-from pointillist.imaging.dither._shared import (_check_bool, _check_levels, _check_template, _levels_1bit, _pixels,
-                                                _result, _srgb_decode_255)
 
 __all__ = ["TEMPLATE_4", "bayer", "clustered_dot", "intensity_thresholds", "ordered", "pattern",
            "halftone", "blue_noise_mask", "blue_noise"]
@@ -78,6 +93,7 @@ def clustered_dot(n: int) -> np.ndarray:
 
 
 def _intensity(image: Any) -> tuple[TensorXf, Float]:
+    refuse_gradients(image, "dithering")
     tensor = as_tensor(image)
     return tensor, clip_intensity(tensor.array)
 
@@ -216,7 +232,7 @@ def ordered(image: Any, template: Any = TEMPLATE_4, *, levels: int = 2, linear: 
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape; 0 and 255 (or the ``levels`` values). 0 stays 0 and 255 stays 255. uint8 for
         uint8 input (levels rounded half to even).
 
@@ -348,7 +364,7 @@ def halftone(image: Any, n: int = 3, *, template: Any = None) -> TensorXf | Tens
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Shape (n H, n W) or (n H, n W, C), values 0 and 255 (uint8 for uint8 input).
 
     Examples

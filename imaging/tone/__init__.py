@@ -2,14 +2,14 @@
 look-up tables and HDR tone mapping (:ref:`conventions-tone`).
 
 Every function takes a numpy array or a Dr.Jit tensor of shape (H, W) or
-(H, W, C) and returns a ``drjit.llvm.TensorXf`` (``np.asarray`` gives numpy).
+(H, W, C) and returns a ``drjit.llvm.ad.TensorXf`` (``np.asarray`` gives numpy).
 The display-domain operations work on intensities 0 to ``max_value`` (255 by
 default); :func:`tonemap` turns linear HDR renders into such intensities.
 
 8-bit in, 8-bit out (as OpenCV and Pillow do): for 8-bit input (a numpy ``uint8``
-array or a ``drjit.llvm.TensorXu8``), :func:`gamma`, :func:`contrast_stretch`,
+array or a ``drjit.llvm.ad.TensorXu8``), :func:`gamma`, :func:`contrast_stretch`,
 :func:`quantize`, :func:`lut` and :func:`equalize_histogram` return a
-``drjit.llvm.TensorXu8`` (``np.asarray`` gives uint8) holding the float32 result
+``drjit.llvm.ad.TensorXu8`` (``np.asarray`` gives uint8) holding the float32 result
 rounded as the 8-bit writers round it (clipped to 0..255, half to even:
 :func:`pointillist.imaging.arrays.to_uint8`); float input keeps float32 output. Pass
 ``image.astype(np.float32)`` for unrounded float output. 8-bit input is served by a
@@ -48,8 +48,14 @@ from __future__ import annotations
 from pointillist.imaging.arrays import NonFiniteWarning
 from pointillist.imaging.tone.curves import QUANTIZE_MODES, gamma, lut, quantize
 from pointillist.imaging.tone.equalisation import contrast_stretch, dynamic_range, equalize_histogram, histogram
-from pointillist.imaging.tone.operators import (ACES_CONSTANTS, HABLE_CONSTANTS, TONEMAP_OPERATORS, TONEMAP_TABLE,
-                                                TonemapOperator, tonemap)
+from pointillist.imaging.tone.operators import (
+                                                ACES_CONSTANTS,
+                                                HABLE_CONSTANTS,
+                                                TONEMAP_OPERATORS,
+                                                TONEMAP_TABLE,
+                                                TonemapOperator,
+                                                tonemap,
+)
 
 __all__ = [
     "NonFiniteWarning",

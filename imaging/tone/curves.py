@@ -6,12 +6,29 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float, UInt32
+from drjit.llvm.ad import Float, UInt32
+from pointillist.imaging.arrays import (
+    TensorXf,
+    TensorXu8,
+    as_tensor,
+    eager_if_shared,
+    is_uint8,
+    opaque_scalar,
+    refuse_gradients,
+)
+from pointillist.imaging.tone._shared import (
+    _done,
+    _finish,
+    _levels,
+    _look_up_bytes,
+    _pointwise,
+    _positive,
+    _sanitize,
+    _u8_indices,
+    _white,
+)
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar
-from pointillist.imaging.tone._shared import (_done, _finish, _levels, _look_up_bytes, _pointwise, _positive, _sanitize,
-                                              _u8_indices, _white)
 
 __all__ = ["gamma", "quantize", "QUANTIZE_MODES", "lut"]
 
@@ -33,7 +50,7 @@ def gamma(image: Any, gamma: float, a: float = 1.0, max_value: float = 255.0) ->
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         ``max_value * (I / max_value / a)^(1/gamma)``, same shape; uint8 (rounded) for uint8 input.
 
     Raises
@@ -100,7 +117,7 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape, at most ``levels`` distinct values, always including 0 and
         max_value when the input reaches them; uint8 (rounded: levels=3 gives 0, 128, 255)
         for uint8 input.
@@ -124,6 +141,7 @@ def quantize(image: Any, levels: int, *, max_value: float = 255.0, mode: str = "
     >>> np.asarray(quantize(np.array([[0, 42, 43, 127, 128, 255]]), 4, mode="bins")).tolist()
     [[0.0, 0.0, 0.0, 85.0, 170.0, 255.0]]
     """
+    refuse_gradients(image, "quantize")
     levels = _levels(levels)
     max_value = _white(max_value, levels)
     mode = checks.choice(mode, "mode", QUANTIZE_MODES)
@@ -178,7 +196,7 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape as ``image``: float32 table values, or for uint8 input (as ``cv2.LUT`` with a
         uint8 table) uint8, the table values rounded half to even and clipped to 0..255.
 
@@ -200,6 +218,7 @@ def lut(image: Any, table: Any) -> TensorXf | TensorXu8:
     >>> np.asarray(lut(np.array([[0.0, 1.0, 255.0]]), 255 - np.arange(256))).tolist()
     [[255.0, 254.0, 0.0]]
     """
+    refuse_gradients(image, "lut")
     if is_uint8(image):
         values, shape = _u8_indices(image)
         channels = shape[2] if len(shape) == 3 else 1

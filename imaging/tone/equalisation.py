@@ -7,14 +7,32 @@ from typing import Any
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Array3f, Float, UInt8, UInt32
+from drjit.llvm.ad import Array3f, Float, UInt8, UInt32
+from pointillist.imaging.arrays import (
+    TensorXf,
+    TensorXu8,
+    as_tensor,
+    check_shape,
+    eager_if_shared,
+    is_uint8,
+    opaque_scalar,
+    refuse_gradients,
+    to_uint8,
+    uint8_array,
+)
+from pointillist.imaging.colour import hsv_from_rgb_values, rgb_from_hsv_values
+from pointillist.imaging.tone._shared import (
+    _done,
+    _finish,
+    _levels,
+    _look_up_bytes,
+    _pointwise,
+    _positive,
+    _sanitize,
+    _white,
+)
 
 from pointillist.core import checks
-from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared, is_uint8,
-                                        opaque_scalar, to_uint8, uint8_array)
-from pointillist.imaging.colour import hsv_from_rgb_values, rgb_from_hsv_values
-from pointillist.imaging.tone._shared import (_done, _finish, _levels, _look_up_bytes, _pointwise, _positive, _sanitize,
-                                              _white)
 
 __all__ = ["contrast_stretch", "histogram", "equalize_histogram", "dynamic_range"]
 
@@ -40,7 +58,7 @@ def contrast_stretch(image: Any, r1: float, s1: float, r2: float, s2: float, *,
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape, values in 0..max_value; uint8 (rounded) for uint8 input.
 
     Raises
@@ -253,6 +271,7 @@ def _bins(image: Any, levels: int, max_value: float):
     pass computes them, as ``UInt8`` for levels <= 256 (a quarter of the bytes of float,
     and packed words for the pair histogram) or ``UInt32``.
     """
+    refuse_gradients(image, "a histogram")
     if is_uint8(image) and levels == 256 and max_value == 255.0:
         flat = np.ascontiguousarray(image).reshape(-1)
         words, tail = _packed(flat)
@@ -290,7 +309,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
 
     Returns
     -------
-    drjit.llvm.TensorXf or drjit.llvm.TensorXu8
+    drjit.llvm.ad.TensorXf or drjit.llvm.ad.TensorXu8
         Same shape; level F(i) is output as F(i) max_value / (L - 1); uint8 (rounded) for uint8
         input, as ``cv2.equalizeHist``.
 
@@ -320,6 +339,7 @@ def equalize_histogram(image: Any, levels: int = 256, *, max_value: float = 255.
     >>> np.asarray(equalize_histogram(np.array([[0, 0, 0, 255]], np.uint8))).tolist()
     [[191, 191, 191, 255]]
     """
+    refuse_gradients(image, "equalize_histogram")
     levels = _levels(levels, high=65536)
     max_value = _white(max_value, levels)
     eight_bit = is_uint8(image)

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
 from pointillist.imaging.orientation import axis_codes, check_affine, snap_directions
+
 
 @dataclass
 class Volume:

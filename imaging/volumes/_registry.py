@@ -14,8 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pointillist.core import checks
 from pointillist.imaging.volumes._model import Volume
+
+from pointillist.core import checks
 
 
 def optional_package(module: str, label: str, package: str):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-__all__ = ["develop_film", "film_sample"]
+__all__ = ["develop_film", "film_sample", "sample_radiance"]
 
 
 def develop_film(film, develop: bool, evaluate: bool) -> mi.TensorXf:
@@ -33,3 +33,17 @@ def film_sample(film, position: mi.Vector2f) -> mi.Vector2f:
     scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
     offset = -mi.ScalarVector2f(film.crop_offset()) * scale
     return dr.fma(position, scale, offset)
+
+
+def sample_radiance(integrator, scene, sampler, ray, medium=None, active=True):
+    """One sample of ``integrator`` along ``ray``: ``(L, valid, aovs)``, whichever of Mitsuba's two
+    Python interfaces it has. A plain sampling integrator (``path``, ``direct``) takes
+    ``sample(scene, sampler, ray, medium, active)``; a differentiable one (``whitted``, ``prb``:
+    subclasses of ``CppADIntegrator``) takes ``sample(mode=, scene=, sampler=, ray=, ...)``
+    and returns a fourth value, its state for the derivative passes."""
+    if isinstance(integrator, mi.CppADIntegrator):
+        L, valid, aovs, _ = integrator.sample(
+            mode=dr.ADMode.Primal, scene=scene, sampler=sampler, ray=ray, depth=mi.UInt32(0),
+            δL=None, δaovs=None, state_in=None, active=mi.Bool(active))
+        return L, valid, aovs
+    return integrator.sample(scene, sampler, ray, medium, active)

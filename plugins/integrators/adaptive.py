@@ -20,7 +20,7 @@ from pointillist.imaging.arrays import divmod_u32
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
 from pointillist.plugins.integrators._adaptive_range import (PixelSums, Squares, first_squares, lattice_sums,
                                                             new_points, next_squares, point_counts, split_squares)
-from pointillist.plugins.integrators._common import develop_film
+from pointillist.plugins.integrators._common import develop_film, sample_radiance
 from pointillist.plugins.integrators._lanes import add_blocks, add_by_pixel, all_finite
 from pointillist.plugins.properties import boolean_property, integer_property, number_property, string_property
 
@@ -264,7 +264,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """One sample of the nested integrator (the adaptive schedule lives in :meth:`render`)."""
-        L, valid, aux = self.nested.sample(scene, sampler, ray, medium, active)
+        L, valid, aux = sample_radiance(self.nested, scene, sampler, ray, medium, active)
         return L, valid, list(aux) + [mi.Float(1.0)]
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -321,7 +321,7 @@ class AdaptiveIntegrator(mi.SamplingIntegrator):
             ray_time += sampler.next_1d() * sensor.shutter_open_time()
         ray, weight = sensor.sample_ray_differential(ray_time, 0.0, sample2, aperture)
         ray.scale_differential(diff_scale)
-        L, valid, aux = self.nested.sample(scene, sampler, ray, sensor.get_medium(), True)
+        L, valid, aux = sample_radiance(self.nested, scene, sampler, ray, sensor.get_medium(), True)
         L = L * weight
         channels = [L.x, L.y, L.z, dr.select(valid, 1.0, 0.0)] + [mi.Float(a) for a in aux]
         finite = all_finite(channels)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import drjit as dr
 import mitsuba as mi
 
@@ -9,7 +11,7 @@ from pointillist.core.checks import UINT32_MAX
 from pointillist.plugins.integrators._offsets import ErrorBounds
 from pointillist.plugins.properties import boolean_property, integer_property, spectrum_property
 
-__all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "PLUGIN_CLASS"]
+__all__ = ["WhittedIntegrator", "SceneFeatures", "inspect_scene", "refuse_geometry_gradients", "PLUGIN_CLASS"]
 
 #: A scene with more emitters than this gets one randomly chosen emitter per
 #: vertex (``Scene.sample_emitter_direction``, unbiased) instead of one shadow
@@ -20,6 +22,9 @@ MAX_UNROLLED_EMITTERS = 16
 #: Largest ``max_depth``: the depth counter is a ``UInt32`` that counts up to
 #: ``max_depth + 1`` (a chain that long never ends in practice: two facing mirrors).
 MAX_DEPTH_LIMIT = UINT32_MAX - 1
+
+#: Mitsuba's base class of differentiable integrators that replay their paths (as ``prb``).
+RBIntegrator = mi.ad.integrators.common.RBIntegrator
 
 _DELTA_LOBES = (mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.Null)
 
@@ -89,7 +94,55 @@ def inspect_scene(scene, *, specialize: bool = True) -> SceneFeatures:
                          sample_one_emitter=many)
 
 
-class WhittedIntegrator(mi.SamplingIntegrator):
+#: The parameter names of a light's placement (its other parameters, radiance, intensity and
+#: their textures, are differentiated).
+_PLACEMENT_KEYS = ("to_world", "position", "direction")
+
+
+def refuse_geometry_gradients(scene) -> None:
+    """Raise ``ValueError`` if a parameter that places something in ``scene`` has gradients enabled.
+
+    Whitted's derivatives are those of the ray tree's weights along fixed rays: a shape's or
+    sensor's parameters (vertex positions, ``to_world``, field of view), and a light's placement
+    (``to_world``, ``position``, ``direction``) also move visibility boundaries (silhouettes,
+    shadow edges), whose derivative needs the boundary sampling of Mitsuba's projective
+    integrators (``direct_projective``, ``prb_projective``). Without it the gradient would be
+    silently wrong (zero at best), so it is refused, naming the parameter.
+    """
+    params = mi.traverse(scene)
+    for key in params.keys():
+        node = params.properties[key][2]
+        geometric = isinstance(node, (mi.Shape, mi.Sensor)) or (
+            isinstance(node, mi.Emitter) and key.rsplit(".", 1)[-1] in _PLACEMENT_KEYS)
+        if geometric and dr.grad_enabled(params[key]):
+            raise ValueError(
+                f"{key}: the whitted integrator does not differentiate geometry (shape, sensor and "
+                "light placement: their derivatives come from moving visibility boundaries, which it "
+                "does not sample); disable gradients on it, or use Mitsuba's 'direct_projective' or "
+                "'prb_projective' integrator for this parameter")
+
+
+class _Trace(NamedTuple):
+    """What one call of :meth:`WhittedIntegrator.sample` traces with (read-only in its loop)."""
+
+    mode: dr.ADMode              # Primal, or Forward/Backward for the replay
+    features: SceneFeatures      # which parts of the algorithm the scene needs
+    bounds: ErrorBounds          # ray offsets from the hits' floating-point error
+
+
+class _Vertex(NamedTuple):
+    """One vertex of a ray tree: what it adds and where the tree goes on."""
+
+    L: mi.Spectrum               # radiance it adds, throughput included (differentiable in the replay)
+    ray: mi.Ray3f                # the delta ray leaving it
+    beta: mi.Spectrum            # throughput of that ray
+    depth: mi.UInt32             # depth after this vertex
+    active: mi.Bool              # the tree goes on
+    hit: mi.Bool                 # the ray found a surface
+    weight: mi.Spectrum          # the delta sample's weight (differentiable in the replay)
+
+
+class WhittedIntegrator(RBIntegrator):
     r"""Whitted-style recursive ray tracer (:monosp:`whitted`)
 
     .. pluginparameters::
@@ -154,6 +207,21 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     page "Numerical robustness" gives the figures). Normals facing away are handled by each BSDF (one-sided
     BSDFs return black). A ray whose throughput becomes 0 stops early.
 
+    **Derivatives.** A differentiable Mitsuba integrator (Mitsuba's ``RBIntegrator``, as
+    ``prb``): ``mi.render(scene, params)`` then ``dr.backward``, or ``render_forward``, gives the
+    derivatives of the image with respect to every material and light parameter: the BSDFs'
+    parameters and textures (``lambert``'s reflectance; ``phong``'s Kd, Ks and exponent; a
+    mirror's or glass's ``specular_reflectance``/``specular_transmittance``, the weight of a delta
+    bounce), emitters' radiance and intensity (bitmap texels included). The derivative pass
+    replays each ray tree with the same random numbers and, at each vertex, re-evaluates what
+    the vertex adds and the weight of its delta bounce with gradients on: the rest of the tree's
+    radiance (the primal total minus what the earlier vertices added) times the weight's
+    relative derivative. Nothing is kept across bounces, so memory does not grow with the depth.
+    Geometry is refused (:func:`refuse_geometry_gradients`: shape and sensor parameters and
+    light placement with gradients enabled raise ValueError naming the parameter), as its
+    derivative comes from moving visibility boundaries that this integrator does not sample;
+    Mitsuba's ``direct_projective`` and ``prb_projective`` do.
+
     .. code-block:: xml
 
         <integrator type="whitted">
@@ -163,7 +231,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props: mi.Properties) -> None:
-        super().__init__(props)
+        # Mitsuba's ADIntegrator reads max_depth (-1 for infinite) and rr_depth, neither of which
+        # is whitted's: the C++ base reads hide_emitters, the properties are read and checked here.
+        mi.CppADIntegrator.__init__(self, props)
         self.max_depth = integer_property(props, "max_depth", 5, 0, MAX_DEPTH_LIMIT,
                                           "0 shows only emitters seen directly")
         ambient = spectrum_property(props, "ambient", 0.0)
@@ -173,79 +243,127 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.m_ambient = dr.opaque(mi.Color3f, ambient)
         self.m_max_depth = dr.opaque(mi.UInt32, self.max_depth)
         self.specialize = boolean_property(props, "specialize", True)
-        #: What the last render found in its scene (a :class:`SceneFeatures`).
+        #: What the last render found in its scene (a :class:`SceneFeatures`): a report for the
+        #: caller, never read back.
         self.features: SceneFeatures | None = None
 
+    # ------------------------------------------------------------ derivatives
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        refuse_geometry_gradients(scene)
+        return super().render_forward(scene, params, sensor, seed, spp)
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        refuse_geometry_gradients(scene)
+        return super().render_backward(scene, params, grad_in, sensor, seed, spp)
+
     # ------------------------------------------------------------------ sample
-    def sample(self, scene, sampler, ray, medium=None, active=True):
+    def sample(self, mode, scene, sampler, ray, δL, state_in, active, **kwargs):
+        """One ray tree per lane (the interface of Mitsuba's ``ADIntegrator.sample``).
+
+        Primal mode returns the radiance. Forward and backward modes replay the same tree
+        (the sampler repeats its numbers) with ``state_in``, the primal radiance, and
+        propagate derivatives vertex by vertex: forward mode returns the derivative of the
+        radiance, backward mode accumulates ``δL`` times it into the parameters' gradients.
+        """
         features = inspect_scene(scene, specialize=self.specialize)
         self.features = features
-        self.bounds = ErrorBounds(scene)
+        trace = _Trace(mode, features, ErrorBounds(scene))
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
         if self.max_depth >= 1 and features.delta_flags:
-            L, valid = self._trace_recursive(scene, sampler, ray, active, features)
+            L, valid = self._trace_recursive(trace, scene, sampler, ray, δL, state_in, active)
         else:
-            state = self._vertex(scene, sampler, ray, mi.Spectrum(1.0), mi.UInt32(0), active, features,
-                                 recurse=False)
-            L, valid = state[0], state[5]
-        return L, valid, []
+            vertex = self._vertex(trace, scene, sampler, ray, mi.Spectrum(1.0), mi.UInt32(0), active,
+                                  recurse=False)
+            L, valid = vertex.L, vertex.hit
+            if mode != dr.ADMode.Primal:
+                L = self._propagate(mode, vertex.L, None, None, δL)
+        return L, valid, [], (L if mode == dr.ADMode.Primal else state_in)
 
     @dr.syntax
-    def _trace_recursive(self, scene, sampler, ray, active, features):
-        L = mi.Spectrum(0.0)
-        beta = mi.Spectrum(1.0)
-        depth = mi.UInt32(0)
-        valid = mi.Bool(False)
-        while dr.hint(active, label="Whitted ray tree"):
-            dL, ray, beta, depth_next, active, hit = self._vertex(
-                scene, sampler, ray, beta, depth, active, features, recurse=True)
-            L += dL
-            valid |= hit & (depth == 0)
-            depth = depth_next
-        return L, valid
+    def _trace_recursive(self, trace, scene, sampler, ray, δL, state_in, active):
+        primal = trace.mode == dr.ADMode.Primal
+        width = dr.width(ray)
+        # --------------------- loop state (full width: see Dr.Jit's reverse-mode loops) ---
+        L = dr.zeros(mi.Spectrum, width) if primal else mi.Spectrum(state_in)  # primal: radiance so far;
+        #                                                  replay: radiance still to come from this vertex on
+        δL = dr.zeros(mi.Spectrum, width) if trace.mode != dr.ADMode.Backward else mi.Spectrum(δL)
+        #                                                  forward: derivative so far; backward: adjoint
+        beta = dr.full(mi.Spectrum, 1.0, width)          # throughput of the current ray
+        depth = dr.zeros(mi.UInt32, width)               # hits shaded so far
+        valid = dr.full(mi.Bool, False, width)           # the camera ray hit a surface
+        while dr.hint(active, max_iterations=min(self.max_depth + 1, UINT32_MAX),
+                      label=f"Whitted ray tree ({trace.mode.name})"):
+            vertex = self._vertex(trace, scene, sampler, ray, beta, depth, active, recurse=True)
+            if dr.hint(primal, mode="scalar"):
+                L += vertex.L
+            else:
+                L -= dr.detach(vertex.L)                 # what the rest of the tree adds
+                δL = self._propagate(trace.mode, vertex.L, L, vertex.weight, δL)
+            valid |= vertex.hit & (depth == 0)
+            ray, beta, depth, active = vertex.ray, vertex.beta, vertex.depth, vertex.active
+        return (L if primal else δL), valid
+
+    @staticmethod
+    def _propagate(mode, L_vertex, L_rest, weight, δL):
+        """Derivatives of one vertex: of what it adds (``L_vertex``, differentiable) and, through
+        the delta sample's ``weight``, of everything the tree adds after it (``L_rest``, detached;
+        its relative derivative is the weight's). Forward mode returns ``δL`` plus that
+        derivative; backward mode accumulates ``δL`` times it into the parameters, returns ``δL``."""
+        with dr.resume_grad():
+            L_o = L_vertex if L_rest is None else L_vertex + L_rest * dr.relative_grad(weight)
+            if mode == dr.ADMode.Backward:
+                dr.backward_from(δL * L_o)
+                return δL
+            forward = dr.forward_to(L_o)
+            return forward if δL is None else δL + forward
 
     # ------------------------------------------------------------------ helpers
-    def _vertex(self, scene, sampler, ray, beta, depth, active, features, *, recurse):
-        """Trace ``ray``, shade its hit; returns (L, next ray, beta, depth, active, hit)."""
+    def _vertex(self, trace, scene, sampler, ray, beta, depth, active, *, recurse):
+        """Trace ``ray`` and shade its hit (differentiably in the replay): a :class:`_Vertex`."""
+        features, bounds = trace.features, trace.bounds
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=(depth == 0), active=active)
         hit = active & si.is_valid()
-        L = mi.Spectrum(0.0)
-        if features.emission:
-            emit = active & (depth > 0) if self.hide_emitters else active
-            L += beta * si.emitter(scene).eval(si, emit)
-        depth = dr.select(active, depth + 1, depth)
-        if self.max_depth == 0:
-            return L, ray, beta, depth, mi.Bool(False), hit
-        shade = hit & (depth <= self.m_max_depth)
-        bsdf = si.bsdf(ray)
+        depth_next = dr.select(active, depth + 1, depth)
+        with dr.resume_grad(when=trace.mode != dr.ADMode.Primal):
+            L = mi.Spectrum(0.0)
+            if features.emission:
+                emit = active & (depth > 0) if self.hide_emitters else active
+                L += beta * si.emitter(scene).eval(si, emit)
+            if self.max_depth == 0:
+                return _Vertex(L, ray, beta, depth_next, mi.Bool(False), hit, mi.Spectrum(1.0))
+            shade = hit & (depth_next <= self.m_max_depth)
+            bsdf = si.bsdf(ray)
 
-        if any(self.ambient_value):
-            L += beta * self.m_ambient * bsdf.eval_diffuse_reflectance(si, shade)
+            if any(self.ambient_value):
+                L += beta * self.m_ambient * bsdf.eval_diffuse_reflectance(si, shade)
 
-        offset = self.bounds.hit_offset(si, shade)      # from the hit's error bound, for every ray it spawns
-        if features.emitters and features.smooth:
-            lit = shade & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            L += beta * self._direct(scene, sampler, si, offset, bsdf, lit, features)
+            offset = bounds.hit_offset(si, shade)     # from the hit's error bound, for every ray it spawns
+            if features.emitters and features.smooth:
+                lit = shade & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+                L += beta * self._direct(scene, sampler, si, offset, bsdf, lit, trace)
 
-        if not recurse:
-            return L, ray, beta, depth, mi.Bool(False), hit
-        ctx = mi.BSDFContext()
-        ctx.type_mask = features.delta_flags
-        bounce = shade & ((bsdf.flags() & mi.UInt32(features.delta_flags)) != 0)
-        bs, weight = bsdf.sample(ctx, si, sampler.next_1d(bounce), sampler.next_2d(bounce), bounce)
-        beta = beta * weight
-        bounce &= dr.any(weight != 0.0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = self.bounds.spawn_ray(si, si.to_world(bs.wo), offset)
-        return L, ray, beta, depth, bounce, hit
+            if not recurse:
+                return _Vertex(L, ray, beta, depth_next, mi.Bool(False), hit, mi.Spectrum(1.0))
+            ctx = mi.BSDFContext()
+            ctx.type_mask = features.delta_flags
+            bounce = shade & ((bsdf.flags() & mi.UInt32(features.delta_flags)) != 0)
+            bs, weight = bsdf.sample(ctx, si, sampler.next_1d(bounce), sampler.next_2d(bounce), bounce)
+            bs = dr.detach(bs)
+            bounce &= dr.any(dr.detach(weight) != 0.0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            weight_followed = dr.select(bounce, weight, 1.0)
+        beta = beta * dr.detach(weight)
+        ray = bounds.spawn_ray(si, si.to_world(bs.wo), offset)
+        return _Vertex(L, ray, beta, depth_next, bounce, hit, weight_followed)
 
-    def _direct(self, scene, sampler, si, offset, bsdf, active, features):
+    def _direct(self, scene, sampler, si, offset, bsdf, active, trace):
         """Light reflected at ``si`` straight from the emitters, with shadow rays."""
+        features, bounds = trace.features, trace.bounds
         ctx = mi.BSDFContext()
         if features.sample_one_emitter:
             ds, weight = scene.sample_emitter_direction(si, sampler.next_2d(active), False, active)
             ok = active & (ds.pdf != 0.0)
-            ok &= ~scene.ray_test(self.bounds.spawn_ray_to(si, offset, ds, active=ok), ok)
+            ok &= ~scene.ray_test(bounds.spawn_ray_to(si, offset, dr.detach(ds), active=ok), ok)
             return dr.select(ok, bsdf.eval(ctx, si, si.to_local(ds.d), ok) * weight, 0.0)
         Ld = mi.Spectrum(0.0)
         table = scene.emitters_dr()
@@ -261,7 +379,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             pointer = dr.gather(mi.EmitterPtr, table, mi.UInt32(index), active)
             ds, weight = pointer.sample_direction(si, sample, active)
             ok = active & dr.any(weight != 0.0)
-            shadow_ray = self.bounds.spawn_ray_to(si, offset, ds, self.bounds.emitter_bound_of(emitter), ok)
+            shadow_ray = bounds.spawn_ray_to(si, offset, dr.detach(ds), bounds.emitter_bound_of(emitter), ok)
             visible = ok & ~scene.ray_test(shadow_ray, ok)
             f = bsdf.eval(ctx, si, si.to_local(ds.d), visible)
             Ld += dr.select(visible, f * weight, 0.0)

@@ -11,9 +11,8 @@ from typing import Callable
 
 import drjit as dr
 import numpy as np
-from drjit.llvm import Float
-
-from pointillist.imaging.arrays import opaque_scalar
+from drjit.llvm.ad import Float
+from pointillist.imaging.arrays import held_extreme, opaque_scalar
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
 
 __all__ = ["HDR_MAX", "log1p", "luminance", "white_point", "on_luminance"]
@@ -46,7 +45,12 @@ def white_point(values: Float, white: float | None) -> Float:
     """``white`` (opaque), or the largest of ``values`` (at least float32's smallest normal)."""
     if white is not None:
         return opaque_scalar(Float, min(white, HDR_MAX))
-    return dr.maximum(dr.max(values), _TINY)  # its own reduction pass
+    w = dr.maximum(dr.max(values), _TINY)  # its own reduction pass
+    if dr.grad_enabled(values):           # the derivative of the brightest value (one, on a tie)
+        top = float(dr.max(dr.detach(values))[0])
+        if top > _TINY:
+            w = dr.replace_grad(w, held_extreme(values, top))
+    return w
 
 
 def on_luminance(curve: Callable[[Float, Float], Float]) -> Callable[[list[Float], float | None], list[Float]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-from drjit.llvm import Float
+from drjit.llvm.ad import Float
 
 __all__ = ["TonemapOperator", "TONEMAP_TABLE", "register"]
 
