@@ -36,19 +36,10 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Array3f, Float, UInt8, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    as_tensor,
-    check_shape,
-    eager_if_shared,
-    is_uint8,
-    opaque_scalar,
-    replace_non_finite,
-    uint8_array,
-    warn_non_finite,
-)
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, as_tensor, check_shape, eager_if_shared, is_uint8, opaque_scalar,
+                                        replace_non_finite, uint8_array, warn_non_finite)
 
 __all__ = [
     "REC709_LUMINANCE_WEIGHTS",

@@ -21,34 +21,14 @@ from typing import Any, NamedTuple
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Bool, Float, UInt8, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    eager_if_shared,
-    held_extreme,
-    is_uint8,
-    opaque_scalar,
-    refuse_gradients,
-    to_uint8,
-    uint8_array,
-)
-from pointillist.imaging.median_networks import median_of
-from pointillist.imaging.neighbourhood import (
-    BORDERS,
-    PADDED_BORDERS,
-    Taps,
-    Window,
-    check_border,
-    finite_extrema,
-    select_max,
-    select_min,
-    window_apply,
-    window_result,
-)
-from pointillist.imaging.rank import radix_median
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, held_extreme, is_uint8,
+                                        opaque_scalar, refuse_gradients, to_uint8, uint8_array)
+from pointillist.imaging.median_networks import median_of
+from pointillist.imaging.neighbourhood import (BORDERS, PADDED_BORDERS, Taps, Window, check_border, finite_extrema,
+                                               select_max, select_min, window_apply, window_result)
+from pointillist.imaging.rank import radix_median
 
 __all__ = [
     "SOBEL_X", "SOBEL_Y", "PREWITT_X", "PREWITT_Y", "GAUSSIAN_3", "LOW_PASS", "HIGH_PASS",

@@ -78,12 +78,12 @@ from typing import Any, NamedTuple
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, Float64, UInt32
+
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, divmod_u32, opaque_scalar, refuse_gradients, to_numpy
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS, srgb_decode
 from pointillist.imaging.neighbourhood import select_max, select_min
 from pointillist.imaging.tone import ACES_CONSTANTS
-
-from pointillist.core import checks
 
 __all__ = ["FLIP_CONSTANTS", "CSF_CONSTANTS", "TONEMAPPERS", "DEFAULT_PPD", "FlipResult", "flip",
            "pixels_per_degree", "hdr_exposure_range", "tonemapper_x_max"]

@@ -25,11 +25,11 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from pointillist.imaging.arrays import as_tensor, to_numpy
 
 from pointillist.core import checks
 from pointillist.core.errors import one_line
 from pointillist.core.files import atomic_write, check_output_path, mark_input
+from pointillist.imaging.arrays import as_tensor, to_numpy
 
 __all__ = ["EXRImage", "read_exr", "write_exr", "write_png", "read_image", "to_8bit"]
 
@@ -364,6 +364,7 @@ def to_8bit(image: Any, *, srgb: bool = True, max_value: float = 1.0) -> np.ndar
     its kernel's float32.
     """
     from drjit.llvm.ad import Float64
+
     from pointillist.imaging.colour import srgb_encode_values
 
     checks.real(max_value, "max_value", low=0.0, low_open=True, float32=False)

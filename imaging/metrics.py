@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
 from pointillist.imaging.flip import flip as _flip_drjit
 from pointillist.imaging.flip import tonemapper_x_max

@@ -57,6 +57,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Bool, Float, Int32, UInt32
+
 from pointillist.imaging.arrays import TensorXf
 
 __all__ = ["BORDERS", "PADDED_BORDERS", "Taps", "Window", "check_border", "window_apply", "window_result",

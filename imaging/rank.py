@@ -21,6 +21,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, UInt32
+
 from pointillist.imaging.arrays import TensorXf
 from pointillist.imaging.neighbourhood import PADDED_BORDERS, _source_index
 

@@ -43,9 +43,9 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, Int32, UInt32, UInt64
-from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared
 
 __all__ = ["INTERPOLATIONS", "KEYS_A", "KEYS_A_RANGE", "MAX_RESIZE_VALUES", "keys_kernel", "resize", "sample"]
 

@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import drjit as dr
 import numpy as np
-import pointillist.imaging  # noqa: F401  (libLLVM first)
 from drjit.llvm.ad import Array3f, Float
 
+import pointillist.imaging  # noqa: F401  (libLLVM first)
 from pointillist.core import checks
 
 __all__ = ["WINDOW_PRESETS", "parse_window", "check_window", "colormap_lut", "apply_window", "window_image"]

@@ -54,17 +54,8 @@ Examples
 from pointillist.imaging.blue_noise import void_and_cluster
 from pointillist.imaging.dither.diffusion import KERNELS, DiffusionKernel, diffuse, error_diffusion, floyd_steinberg
 from pointillist.imaging.dither.methods import DITHER_METHODS, DitherError, dither, dither_error, dither_options
-from pointillist.imaging.dither.templates import (
-                                                  TEMPLATE_4,
-                                                  bayer,
-                                                  blue_noise,
-                                                  blue_noise_mask,
-                                                  clustered_dot,
-                                                  halftone,
-                                                  intensity_thresholds,
-                                                  ordered,
-                                                  pattern,
-)
+from pointillist.imaging.dither.templates import (TEMPLATE_4, bayer, blue_noise, blue_noise_mask, clustered_dot,
+                                                  halftone, intensity_thresholds, ordered, pattern)
 from pointillist.imaging.filters import threshold
 
 __all__ = [

@@ -8,18 +8,10 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, UInt8
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    is_uint8,
-    opaque_scalar,
-    refuse_gradients,
-    to_uint8,
-    uint8_array,
-)
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, is_uint8, opaque_scalar, refuse_gradients,
+                                        to_uint8, uint8_array)
 
 _MAX_LEVELS = 256
 

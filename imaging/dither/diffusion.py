@@ -7,15 +7,10 @@ from typing import Any, NamedTuple
 
 import drjit as dr
 from drjit.llvm.ad import Float, UInt8
+
 from pointillist.imaging.arrays import TensorXf, TensorXu8, eager_if_shared
-from pointillist.imaging.dither._shared import (
-    _check_bool,
-    _check_level,
-    _check_levels,
-    _pixels,
-    _quantiser,
-    _srgb_decode_255,
-)
+from pointillist.imaging.dither._shared import (_check_bool, _check_level, _check_levels, _pixels, _quantiser,
+                                                _srgb_decode_255)
 from pointillist.imaging.wavefront import clip_intensity, diffuse_wavefront
 
 __all__ = ["KERNELS", "DiffusionKernel", "diffuse", "floyd_steinberg", "error_diffusion"]

@@ -8,6 +8,7 @@ from typing import Any, Callable, NamedTuple
 
 import drjit as dr
 from drjit.llvm.ad import Float64
+
 from pointillist.imaging.arrays import TensorXf, TensorXu8, as_tensor
 from pointillist.imaging.dither.diffusion import KERNELS, diffuse, error_diffusion
 from pointillist.imaging.dither.templates import bayer, blue_noise, halftone, ordered, pattern

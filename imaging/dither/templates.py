@@ -10,28 +10,13 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, Float64, UInt8, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    divmod_u32,
-    eager_if_shared,
-    is_uint8,
-    opaque_scalar,
-    refuse_gradients,
-)
-from pointillist.imaging.dither._shared import (
-    _check_bool,
-    _check_levels,
-    _check_template,
-    _levels_1bit,
-    _pixels,
-    _result,
-    _srgb_decode_255,
-)
-from pointillist.imaging.wavefront import clip_intensity
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, divmod_u32, eager_if_shared, is_uint8,
+                                        opaque_scalar, refuse_gradients)
+from pointillist.imaging.dither._shared import (_check_bool, _check_levels, _check_template, _levels_1bit, _pixels,
+                                                _result, _srgb_decode_255)
+from pointillist.imaging.wavefront import clip_intensity
 
 __all__ = ["TEMPLATE_4", "bayer", "clustered_dot", "intensity_thresholds", "ordered", "pattern",
            "halftone", "blue_noise_mask", "blue_noise"]

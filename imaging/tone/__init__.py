@@ -48,14 +48,8 @@ from __future__ import annotations
 from pointillist.imaging.arrays import NonFiniteWarning
 from pointillist.imaging.tone.curves import QUANTIZE_MODES, gamma, lut, quantize
 from pointillist.imaging.tone.equalisation import contrast_stretch, dynamic_range, equalize_histogram, histogram
-from pointillist.imaging.tone.operators import (
-                                                ACES_CONSTANTS,
-                                                HABLE_CONSTANTS,
-                                                TONEMAP_OPERATORS,
-                                                TONEMAP_TABLE,
-                                                TonemapOperator,
-                                                tonemap,
-)
+from pointillist.imaging.tone.operators import (ACES_CONSTANTS, HABLE_CONSTANTS, TONEMAP_OPERATORS, TONEMAP_TABLE,
+                                                TonemapOperator, tonemap)
 
 __all__ = [
     "NonFiniteWarning",

@@ -7,18 +7,10 @@ from typing import Any, Callable
 
 import drjit as dr
 from drjit.llvm.ad import Float, UInt8, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    is_uint8,
-    replace_non_finite,
-    to_uint8,
-    uint8_array,
-    warn_non_finite,
-)
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, is_uint8, replace_non_finite, to_uint8,
+                                        uint8_array, warn_non_finite)
 
 # --------------------------------------------------------------------------- argument checks
 

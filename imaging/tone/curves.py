@@ -7,28 +7,12 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    eager_if_shared,
-    is_uint8,
-    opaque_scalar,
-    refuse_gradients,
-)
-from pointillist.imaging.tone._shared import (
-    _done,
-    _finish,
-    _levels,
-    _look_up_bytes,
-    _pointwise,
-    _positive,
-    _sanitize,
-    _u8_indices,
-    _white,
-)
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, eager_if_shared, is_uint8, opaque_scalar,
+                                        refuse_gradients)
+from pointillist.imaging.tone._shared import (_done, _finish, _levels, _look_up_bytes, _pointwise, _positive, _sanitize,
+                                              _u8_indices, _white)
 
 __all__ = ["gamma", "quantize", "QUANTIZE_MODES", "lut"]
 

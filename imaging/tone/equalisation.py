@@ -8,31 +8,13 @@ from typing import Any
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Array3f, Float, UInt8, UInt32
-from pointillist.imaging.arrays import (
-    TensorXf,
-    TensorXu8,
-    as_tensor,
-    check_shape,
-    eager_if_shared,
-    is_uint8,
-    opaque_scalar,
-    refuse_gradients,
-    to_uint8,
-    uint8_array,
-)
-from pointillist.imaging.colour import hsv_from_rgb_values, rgb_from_hsv_values
-from pointillist.imaging.tone._shared import (
-    _done,
-    _finish,
-    _levels,
-    _look_up_bytes,
-    _pointwise,
-    _positive,
-    _sanitize,
-    _white,
-)
 
 from pointillist.core import checks
+from pointillist.imaging.arrays import (TensorXf, TensorXu8, as_tensor, check_shape, eager_if_shared, is_uint8,
+                                        opaque_scalar, refuse_gradients, to_uint8, uint8_array)
+from pointillist.imaging.colour import hsv_from_rgb_values, rgb_from_hsv_values
+from pointillist.imaging.tone._shared import (_done, _finish, _levels, _look_up_bytes, _pointwise, _positive, _sanitize,
+                                              _white)
 
 __all__ = ["contrast_stretch", "histogram", "equalize_histogram", "dynamic_range"]
 

@@ -27,15 +27,8 @@ range fits); other data into float32 textures.
 from pointillist.imaging.volumes import formats  # noqa: F401 - registers every reader
 from pointillist.imaging.volumes._model import OrientationWarning, Volume
 from pointillist.imaging.volumes._phantom import SHEPP_LOGAN_HU, shepp_logan_phantom
-from pointillist.imaging.volumes._registry import (
-                                                   VolumeReader,
-                                                   load_volume,
-                                                   reader_table,
-                                                   register,
-                                                   volume_files,
-                                                   volume_formats,
-                                                   volume_readers,
-)
+from pointillist.imaging.volumes._registry import (VolumeReader, load_volume, reader_table, register,
+                                                   volume_files, volume_formats, volume_readers)
 from pointillist.imaging.volumes._texture import VolumeTexture, volume_texture
 from pointillist.imaging.volumes.formats.dicom import read_dicom_series
 from pointillist.imaging.volumes.formats.nifti import read_nifti

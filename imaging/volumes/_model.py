@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from pointillist.imaging.orientation import axis_codes, check_affine, snap_directions
 
 

@@ -14,9 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pointillist.imaging.volumes._model import Volume
-
 from pointillist.core import checks
+from pointillist.imaging.volumes._model import Volume
 
 
 def optional_package(module: str, label: str, package: str):

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
 from pointillist.imaging.volumes._model import Volume
 
 #: Integers a float16 holds exactly: -2048..2048 (11-bit significand).

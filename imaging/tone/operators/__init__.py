@@ -14,13 +14,13 @@ from typing import Any
 
 import drjit as dr
 from drjit.llvm.ad import Array3f, Float, UInt32
+
+from pointillist.core import checks
 from pointillist.imaging.arrays import TensorXf, as_tensor, eager_if_shared, opaque_scalar
 from pointillist.imaging.colour import srgb_encode_values
 from pointillist.imaging.tone._shared import _finish
 from pointillist.imaging.tone.operators._curves import HDR_MAX
 from pointillist.imaging.tone.operators._registry import TONEMAP_TABLE, TonemapOperator, register
-
-from pointillist.core import checks
 
 for _module in pkgutil.iter_modules(__path__):
     if not _module.name.startswith("_"):

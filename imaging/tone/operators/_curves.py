@@ -12,6 +12,7 @@ from typing import Callable
 import drjit as dr
 import numpy as np
 from drjit.llvm.ad import Float
+
 from pointillist.imaging.arrays import held_extreme, opaque_scalar
 from pointillist.imaging.colour import REC709_LUMINANCE_WEIGHTS
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 from drjit.llvm.ad import Float
+
+from pointillist.core import checks
 from pointillist.imaging.arrays import opaque_scalar
 from pointillist.imaging.tone.operators._curves import HDR_MAX
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
-
-from pointillist.core import checks
 
 __all__ = ["HABLE_CONSTANTS"]
 

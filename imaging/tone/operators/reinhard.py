@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from drjit.llvm.ad import Float
+
 from pointillist.imaging.tone.operators._curves import on_luminance
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
 

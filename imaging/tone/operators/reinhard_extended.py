@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import drjit as dr
 from drjit.llvm.ad import Float
+
 from pointillist.imaging.tone.operators._curves import white_point
 from pointillist.imaging.tone.operators._registry import TonemapOperator, register
 

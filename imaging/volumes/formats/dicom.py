@@ -8,11 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pointillist.imaging.volumes._model import Volume, _pick_frame, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 from pointillist.core import checks
 from pointillist.core.errors import one_line
+from pointillist.imaging.volumes._model import Volume, _pick_frame, _warn
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_dicom_series"]
 

@@ -9,12 +9,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pointillist.imaging.orientation import LPS_FROM_RAS
-from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _pick_frame, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 from pointillist.core import checks
 from pointillist.core.errors import one_line
+from pointillist.imaging.orientation import LPS_FROM_RAS
+from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _pick_frame, _warn
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_nifti"]
 

@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
-from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 from pointillist.core.errors import one_line
+from pointillist.imaging.volumes._model import Volume, _check_claimed_size, _warn
+from pointillist.imaging.volumes._registry import VolumeReader, optional_package, register
 
 __all__ = ["read_nrrd", "nrrd_data_files"]
 

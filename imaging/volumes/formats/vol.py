@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from pointillist.imaging.volumes._model import Volume
 from pointillist.imaging.volumes._registry import VolumeReader, register
 
