@@ -59,11 +59,17 @@ extensions = [
     "sphinx.ext.mathjax",
     "numpydoc",
     "myst_nb",
+    "sphinx_copybutton",
     "pointillist_sphinx",
 ]
 
+# Copy buttons copy the commands, not the prompts or the outputs of a doctest.
+copybutton_prompt_text = r">>> |\.\.\. |\$ "
+copybutton_prompt_is_regexp = True
+copybutton_only_copy_prompt_lines = False
+
 root_doc = "index"
-exclude_patterns = ["_build", "**.ipynb_checkpoints", "README.md"]
+exclude_patterns = ["_build", "**.ipynb_checkpoints", "README.md", "gallery/_generated"]  # included by gallery.md
 templates_path = ["_templates"]
 html_static_path = ["_static"]
 html_css_files = ["pointillist.css"]

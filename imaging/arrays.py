@@ -16,13 +16,13 @@ from typing import Any, Callable, TypeVar
 
 import drjit as dr
 import numpy as np
-from drjit.llvm.ad import Float, TensorXf, TensorXu8, UInt8
+from drjit.llvm.ad import Float, TensorXf, TensorXu8, UInt8  # noqa: F401 - TensorXu8 re-exported with TensorXf
 
 from pointillist.core import checks
 
-__all__ = ["as_tensor", "refuse_gradients", "held_extreme", "to_numpy", "TensorXf", "TensorXu8", "eager_if_shared",
-           "check_shape", "is_uint8", "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning",
-           "replace_non_finite", "warn_non_finite"]
+__all__ = ["as_tensor", "refuse_gradients", "held_extreme", "to_numpy", "eager_if_shared", "check_shape", "is_uint8",
+           "uint8_array", "to_uint8", "opaque_scalar", "divmod_u32", "NonFiniteWarning", "replace_non_finite",
+           "warn_non_finite"]
 
 
 class NonFiniteWarning(RuntimeWarning):

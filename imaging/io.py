@@ -51,6 +51,11 @@ class EXRImage(NamedTuple):
     layers: dict[str, np.ndarray]
 
 
+EXRImage.image.__doc__ = "The pixels: float32, (H, W) for a ``Y`` image, (H, W, 3) RGB or (H, W, 4) RGBA."
+EXRImage.metadata.__doc__ = "The header attributes that are not OpenEXR's own."
+EXRImage.layers.__doc__ = "Extra channels by name, each float32 (H, W)."
+
+
 def read_exr(path: str | os.PathLike, *, copies: int = 2) -> EXRImage:
     """Read an OpenEXR file as float32 numpy arrays.
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -433,6 +434,9 @@ def test_cli_compare_end_to_end_and_resume(cli, tmp_path):
     text = (out / "results.md").read_text()
     assert "Equal-time ranking" in text and "MSE vs spp" in text and "Equal-error ranking" in text
     assert "| jitter | 4 spp | 4 |" in text  # the setting column
+    # the cached reference is named relative to the folder (the page reads the same wherever it lies)
+    assert re.search(r"reference `reference/renders/[0-9a-f]+/stratified_spp00064_seed\d+\.exr`", text), text[:600]
+    assert str(tmp_path) not in text and str(tmp_path) not in (out / "report.html").read_text()
     # error falls with spp for every sampler (mean over seeds)
     for method in ("grid", "jitter", "random", "poisson"):
         mse = [np.mean([float(r["rmse"]) ** 2 for r in rows if r["method"] == method and r["spp"] == s])

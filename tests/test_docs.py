@@ -206,6 +206,42 @@ def test_every_page_is_reachable_from_the_index(site):
 
 
 @pytest.mark.slow
+def _gallery_pictures() -> dict[str, str]:
+    """docs/gallery/make.py's PICTURES (read from its source: importing it starts matplotlib)."""
+    source = (DOCS / "gallery" / "make.py").read_text()
+    start = source.index("PICTURES = {")
+    namespace: dict = {}
+    exec(source[start:source.index("}\n", start) + 1], namespace)
+    return namespace["PICTURES"]
+
+
+def test_the_gallery_shows_every_picture_and_each_guide_one(site):
+    """The build made the gallery's pictures (not blank), the gallery page shows all of them, and every
+    guide shows at least one."""
+    from PIL import Image
+
+    pictures = _gallery_pictures()
+    assert len(pictures) >= 10
+
+    def shown(page):
+        found = {}
+        for src in parse(page).images:
+            name = Path(src).stem
+            if name in pictures:
+                path = (page.parent / src).resolve()
+                assert path.is_file(), src
+                found[name] = np.asarray(Image.open(path).convert("RGB")).astype(float)
+        return found
+
+    gallery = shown(site.html / "gallery.html")
+    assert set(gallery) == set(pictures)
+    for name, image in gallery.items():
+        assert image.shape[0] > 100 and image.std() > 10, f"{name}.png looks blank"
+    for guide in sorted((DOCS / "guides").glob("*.md")):
+        if guide.stem != "index":
+            assert shown(site.html / "guides" / f"{guide.stem}.html"), f"{guide.name}: no gallery picture"
+
+
 def test_notebooks_ran_and_show_their_outputs(site):
     notebooks = sorted((ROOT / "notebooks").glob("*.ipynb"))
     assert notebooks
@@ -258,6 +294,7 @@ def test_the_index_in_headless_chromium(site, tmp_path):
                   "API reference", "Numerical robustness", "Benchmarks", "Architecture"):
         assert f">{title}</a>" in navigation, title
     assert 'src="_images/compare_report.png"' in dom
+    assert dom.count('class="copybtn') >= 1, "code blocks get a copy button (sphinx-copybutton's script)"
     shot = tmp_path / "index.png"
     done = run_chromium(page, tmp_path, f"--screenshot={shot}", "--window-size=1280,900", fragment="")
     assert done.returncode == 0 and console(done.stderr) == [], done.stderr[-2000:]
@@ -385,12 +422,24 @@ def test_an_undocumented_constant_shows_its_value_not_its_types_docstring():
     assert ext._inherited_docstring(2.0, float_doc) and ext._inherited_docstring(2.0, [])
     assert not ext._inherited_docstring(2.0, ["The largest aspect ratio of a sample grid."])
     lines = ["The largest aspect ratio."]
-    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.MAX_GRID_ASPECT", 2.0, {}, lines)
+    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.RATIO", 2.0, {}, lines)
     assert lines == ["The largest aspect ratio."]
-    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.MAX_GRID_ASPECT", 2.0, {}, float_doc)
+    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.RATIO", 2.0, {}, float_doc)
     assert float_doc == ["Value: ``2.0``", ""]
     assert ext.value_summary(np.eye(2, dtype=np.int64))[:4] == ["A ``int64`` array of shape ``(2, 2)``:", "", "::", ""]
     assert ext.value_summary(np.zeros(65))[0] == "A ``float64`` array of shape ``(65,)``."
     assert ext.value_summary({"a": 1, "b": 2})[0] == "A mapping of 2 entries: ``'a'``, ``'b'``."
     assert ext.value_summary(tuple(range(100)))[0] == "A ``tuple`` of 100 items."
     assert ext.is_function(functools.lru_cache(maxsize=None)(lambda: 1)) and not ext.is_function(2.0)
+
+
+def test_a_constant_a_module_reexports_from_a_sibling_keeps_its_doc_comment(mi):
+    """grid re-exports ``MAX_GRID_ASPECT`` from the samplers' ``_base``: the row shows _base's comment."""
+    from pointillist.plugins.samplers import grid
+
+    ext = _extension()
+    lines = inspect.cleandoc(float.__doc__).splitlines()
+    ext.process_docstring(None, "data", "pointillist.plugins.samplers.grid.MAX_GRID_ASPECT", grid.MAX_GRID_ASPECT,
+                          {}, lines)
+    assert lines[0].startswith("Largest cols / rows ratio accepted without a warning")
+    assert lines[-2] == "(Defined in :mod:`pointillist.plugins.samplers._base`.)"

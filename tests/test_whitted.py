@@ -392,3 +392,41 @@ def test_scene_parameters_in_the_header_are_accepted(mi, name):
     for param in names:
         params = {"res": "8", "spp": "1", param: defaults[param]}
         load_scene(SCENES / name, params)        # raises on an unknown / unused parameter
+
+
+def test_an_integrator_outliving_its_scene_keeps_nothing_of_it(tmp_path):
+    """An integrator object used on one scene, which is then freed, and a render of another scene:
+    the integrator kept the first scene's emitters (SceneFeatures on ``self``) past their shapes,
+    and the next trace of a virtual call to the emitters (Dr.Jit traces every registered emitter)
+    read a freed shape and crashed the process. In a subprocess: a crash must fail the test, not
+    the suite."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    script = tmp_path / "outlive.py"
+    script.write_text(f"""
+import gc, sys
+sys.path.insert(0, {str(ROOT)!r})
+import drjit as dr, numpy as np, pointillist
+mi = pointillist.setup()
+kept = mi.load_dict({{"type": "adaptive", "threshold": 20.0, "max_depth": 2, "nested": {{"type": "whitted"}}}})
+first = mi.load_file({str(ROOT / "scenes" / "default.xml")!r}, res="48", spp="1")
+np.asarray(mi.render(first, integrator=kept, seed=0))
+del first
+gc.collect()
+second = mi.load_file({str(ROOT / "scenes" / "default.xml")!r}, res="48")
+params = mi.traverse(second)
+key = "ball.bsdf.diffuse_reflectance.value"
+theta = mi.Float(0.0)
+dr.enable_grad(theta)
+params[key] = mi.Color3f(params[key]) + theta
+params.update()
+dr.forward(theta, dr.ADFlag.ClearEdges)
+image = second.integrator().render_forward(second, theta, seed=1, spp=4)
+print("ok", float(np.asarray(image).sum()) > 0)
+""")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])
+    assert done.stdout.split()[-2:] == ["ok", "True"]

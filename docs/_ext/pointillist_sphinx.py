@@ -22,11 +22,14 @@ What the site needs beyond Sphinx, numpydoc and myst-nb:
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
 import inspect
 import os
 import pkgutil
+import shutil
+import subprocess
 import sys
 import types
 import typing
@@ -339,18 +342,21 @@ def value_summary(value) -> list[str]:
 
 
 def reexported_doc_comment(name: str, value) -> list[str] | None:
-    """The ``#:`` comment of a constant that package ``name`` re-exports from one of its modules
-    (autodoc looks for it in the package's own source only); None when the package defines it
-    itself (or no module of the package holds it with a comment)."""
+    """The ``#:`` comment of a constant that a package or module re-exports from one of the
+    package's modules (autodoc looks for it in the re-exporting source only); None when it is
+    defined there (or no module of the package holds it with a comment)."""
     from sphinx.pycode import ModuleAnalyzer
 
-    package, _, attribute = name.rpartition(".")
-    module = sys.modules.get(package)
-    if module is None or not hasattr(module, "__path__"):
+    exporter, _, attribute = name.rpartition(".")
+    module = sys.modules.get(exporter)
+    if module is None:
         return None
-    if ("", attribute) in ModuleAnalyzer.for_module(package).find_attr_docs():
+    if ("", attribute) in ModuleAnalyzer.for_module(exporter).find_attr_docs():
         return None
-    for info in pkgutil.walk_packages(module.__path__, prefix=f"{package}."):
+    package = module if hasattr(module, "__path__") else sys.modules.get(exporter.rpartition(".")[0])
+    if package is None or not hasattr(package, "__path__"):
+        return None
+    for info in pkgutil.walk_packages(package.__path__, prefix=f"{package.__name__}."):
         home = importlib.import_module(info.name)
         if vars(home).get(attribute) is value:
             comment = ModuleAnalyzer.for_module(info.name).find_attr_docs().get(("", attribute))
@@ -402,6 +408,24 @@ def skip_member(app, what, name, obj, skip, options):
     if what == "class" and owner_name and module is not None and is_plugin_class(getattr(module, owner_name, None)):
         return True
     return None
+
+
+def make_gallery(app) -> None:
+    """Run ``gallery/make.py`` into ``gallery/_generated`` (the pictures and the page listing them)
+    unless that folder holds what this version of the script made: its SHA-256 in ``.made-by``
+    (``POINTILLIST_GALLERY=1`` makes them again). In a subprocess: the script renders with Mitsuba."""
+    script = Path(app.srcdir) / "gallery" / "make.py"
+    out = Path(app.srcdir) / "gallery" / "_generated"
+    digest = hashlib.sha256(script.read_bytes()).hexdigest()
+    stamp = out / ".made-by"
+    if os.environ.get("POINTILLIST_GALLERY") != "1" and stamp.is_file() and stamp.read_text() == digest \
+            and (out / "gallery.md").is_file():
+        return
+    shutil.rmtree(out, ignore_errors=True)
+    done = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"docs/gallery/make.py failed (status {done.returncode}):\n{done.stderr[-3000:]}")
+    stamp.write_text(digest)
 
 
 def prepare_build(app):
@@ -470,6 +494,7 @@ def setup(app):
     app.add_directive("pointillist-plugins", PluginReference)
     app.add_directive("pointillist-cli-help", CommandLineHelp)
     app.connect("builder-inited", prepare_build, priority=100)  # before autosummary (500)
+    app.connect("builder-inited", make_gallery, priority=100)
     app.connect("autodoc-process-docstring", process_docstring, priority=100)  # before numpydoc (500)
     app.connect("autodoc-process-signature", process_signature, priority=100)  # before numpydoc (500)
     app.connect("autodoc-skip-member", skip_member)

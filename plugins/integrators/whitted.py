@@ -243,9 +243,9 @@ class WhittedIntegrator(RBIntegrator):
         self.m_ambient = dr.opaque(mi.Color3f, ambient)
         self.m_max_depth = dr.opaque(mi.UInt32, self.max_depth)
         self.specialize = boolean_property(props, "specialize", True)
-        #: What the last render found in its scene (a :class:`SceneFeatures`): a report for the
-        #: caller, never read back.
-        self.features: SceneFeatures | None = None
+        # Nothing about a scene is kept on the integrator between calls: a SceneFeatures holds the
+        # scene's emitters, and an emitter kept alive past its scene (its shape freed) crashes the
+        # next trace of any virtual call to the emitters (Dr.Jit traces every registered one).
 
     # ------------------------------------------------------------ derivatives
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
@@ -265,12 +265,10 @@ class WhittedIntegrator(RBIntegrator):
         propagate derivatives vertex by vertex: forward mode returns the derivative of the
         radiance, backward mode accumulates ``δL`` times it into the parameters' gradients.
         """
-        features = inspect_scene(scene, specialize=self.specialize)
-        self.features = features
-        trace = _Trace(mode, features, ErrorBounds(scene))
+        trace = _Trace(mode, inspect_scene(scene, specialize=self.specialize), ErrorBounds(scene))
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
-        if self.max_depth >= 1 and features.delta_flags:
+        if self.max_depth >= 1 and trace.features.delta_flags:
             L, valid = self._trace_recursive(trace, scene, sampler, ray, δL, state_in, active)
         else:
             vertex = self._vertex(trace, scene, sampler, ray, mi.Spectrum(1.0), mi.UInt32(0), active,

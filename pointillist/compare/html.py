@@ -38,6 +38,7 @@ import numpy as np
 
 from pointillist.compare.methods import setting_label, sweep_parameter
 from pointillist.compare.tables import TIMING_FLOOR, format_time, results_table, slopes, summarise
+from pointillist.core.files import shown_in
 
 __all__ = ["REPORT_NAME", "ReportPage", "write_html_report", "DEFAULT_MAX_BYTES", "encode_half",
            "colormap_table", "subsample_stride", "template_text", "PAGE_SCRIPTS", "page_script"]
@@ -296,8 +297,8 @@ def write_html_report(records: Sequence[Any], out_dir: str | os.PathLike, *, sce
         table.append(f"<tr data-render=\"{point['render']}\">"
                      + "".join(f"<td>{html.escape(cell)}</td>" for cell in row) + "</tr>")
     table.append("</tbody></table>")
-    notes = [f"Scene <code>{html.escape(scene)}</code>, reference <code>{html.escape(str(reference))}</code>, "
-             f"{width}x{height} pixels."]
+    shown = html.escape(shown_in(reference, out_dir))
+    notes = [f"Scene <code>{html.escape(scene)}</code>, reference <code>{shown}</code>, {width}x{height} pixels."]
     if stride > 1:
         notes.append(f"To keep this page under {max_bytes / 1e6:.3g} MB it holds every {_ordinal(stride)} pixel in "
                      f"x and y ({shown_w}x{shown_h}; pixels, not averages): the numbers are those of the full images.")

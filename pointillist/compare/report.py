@@ -63,7 +63,10 @@ def write_report(records: Sequence[Any], out_dir: str | os.PathLike, *, scene: s
     atomic_write(paths["csv"], lambda tmp: _write_csv(records, tmp))
     rows = summarise(records)
     fitted = slopes(rows, min_time=TIMING_FLOOR)
-    text = "\n".join(_markdown(rows, fitted, scene=scene, reference=reference, title=title, notes=notes)) + "\n"
+    from pointillist.core.files import shown_in
+
+    text = "\n".join(_markdown(rows, fitted, scene=scene, reference=shown_in(reference, out_dir), title=title,
+                               notes=notes)) + "\n"
     atomic_write(paths["md"], lambda tmp: Path(tmp).write_text(text))
     _plot(rows, fitted, "time", "render time without JIT compile (s)", "mse_vs_time", paths["time_plot"])
     _plot(rows, fitted, "spp", "samples per pixel", "mse_vs_spp", paths["spp_plot"])

@@ -40,7 +40,7 @@ from pointillist.core import signals
 from pointillist.core.errors import UsageError
 
 __all__ = ["file_id", "mark_input", "input_file", "unwritable", "existing_ancestor", "check_output_path",
-           "atomic_write", "save_figure"]
+           "atomic_write", "save_figure", "shown_in"]
 
 #: (st_dev, st_ino) of every file this process read as an input (:func:`mark_input`).
 _READ: set[tuple[int, int]] = set()
@@ -246,3 +246,20 @@ def save_figure(fig, path: str | os.PathLike, *, inputs: Iterable[str | os.PathL
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", **savefig))
     finally:
         plt.close(fig)
+
+
+def shown_in(path: str | os.PathLike, folder: str | os.PathLike) -> str:
+    """``path`` as a page written into ``folder`` shows it: relative to ``folder`` when it lies inside
+    (a reference cached in the output folder reads ``reference/renders/...``, wherever the folder
+    is), else as given.
+
+    Examples
+    --------
+    >>> shown_in("/tmp/run/reference/a.exr", "/tmp/run"), shown_in("ref.exr", "/tmp/run")
+    ('reference/a.exr', 'ref.exr')
+    """
+    inside = Path(os.path.abspath(path))
+    try:
+        return inside.relative_to(Path(os.path.abspath(folder))).as_posix()
+    except ValueError:
+        return os.fspath(path)

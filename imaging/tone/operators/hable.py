@@ -1,4 +1,4 @@
-"""``hable``: Hable's filmic curve (J. Hable, "Uncharted 2: HDR Lighting", GDC 2010)."""
+"""``hable``: Hable's filmic curve (John Hable, "Uncharted 2: HDR Lighting", GDC 2010)."""
 
 from __future__ import annotations
 
