@@ -814,3 +814,30 @@ def test_render_progressive_checks_checkpoint_seconds_before_any_pass(mi, tmp_pa
         render_progressive(_load(EDGES, res=8), EDGES, Budget(spp=2), checkpoint_seconds=seconds,
                            checkpoint_file=tmp_path / "x.checkpoint.npz", progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_render_without_a_terminal_says_where_it_stands(mi, capsys):
+    """stderr not a terminal (a log, a pipe): no bar, but a status line every STATUS_SECONDS of the
+    clock, with the projection to the target once the estimate is trusted; none with progress off."""
+    import re
+
+    from pointillist.progressive import STATUS_SECONDS, Budget, render_progressive
+
+    def run(progress):
+        now = [0.0]
+
+        def clock():                      # every reading advances a quarter of the status interval
+            now[0] += STATUS_SECONDS / 4
+            return now[0]
+
+        result = render_progressive(_load(EDGES, res=8), EDGES, Budget(target_error=1e-9, spp=16, pass_spp=1),
+                                    progress=progress, clock=clock)
+        return result, capsys.readouterr().err.splitlines()
+
+    result, lines = run(True)
+    assert result.stats.spp == 16 and len(lines) >= 3, lines
+    pattern = (r"render: \d+ s, \d+ passes, \d+ spp(, est\. relMSE \S+( \(untrusted\))?, target 1e-09 "
+               r"(projected at \d+ spp, ~\d+(\.\d)? (s|min|h) more|: no projection until the estimate is trusted))?$")
+    assert all(re.match(pattern, line) for line in lines), lines
+    assert any("relMSE" in line for line in lines)
+    assert run(False)[1] == []

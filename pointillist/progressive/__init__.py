@@ -25,6 +25,7 @@ the modules above is importable from here too.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -43,12 +44,13 @@ from pointillist.progressive.report import progress_paths, render_warnings, writ
 from pointillist.progressive.seeds import pass_seed, tea32
 from pointillist.progressive.stats import HISTORY_COLUMNS, PassStats, history_row
 from pointillist.scene import RenderTiming, scene_info, timed_render
-from pointillist.core.terminal import progress_bar
+from pointillist.core.terminal import draws_progress, progress_bar
 
 __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOINT_VERSION", "HISTORY_COLUMNS",
            "RELIABLE_VARIANCE", "FIREFLY_RANGE", "FLOORED_SHARE", "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed",
            "tea32", "PassStats", "ErrorEstimate", "Accumulator", "Budget", "render_passes", "ProgressiveResult",
-           "render_progressive", "write_progress", "checkpoint_path", "progress_paths", "scene_fingerprint"]
+           "render_progressive", "write_progress", "checkpoint_path", "progress_paths", "scene_fingerprint",
+           "STATUS_SECONDS", "status_line"]
 
 
 def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, accumulator: Accumulator,
@@ -200,14 +202,49 @@ def _bar_position(budget: Budget, stats: PassStats) -> float:
     return stats.passes
 
 
+#: Without a terminal (a log file, a pipe, a batch job) a progressive render writes one status line
+#: to standard error this often (wall seconds), so that a long render says where it stands.
+STATUS_SECONDS = 60.0
+
+
 def _postfix(budget: Budget, stats: PassStats) -> str:
+    """Where the render stands: passes, spp, the estimate and, under a target error, what reaching it
+    takes (relMSE falls as 1/spp: ``spp * estimate / target`` spp in all), once the estimate is trusted."""
     text = f"{stats.passes} passes, {stats.spp} spp"
     if math.isfinite(stats.estimated_relmse):
         text += f", est. relMSE {stats.estimated_relmse:.3g}" + ("" if stats.trusted else " (untrusted)")
         if budget.target_error is not None and stats.estimated_relmse > budget.target_error:
-            more = stats.spp * (stats.estimated_relmse / budget.target_error - 1)
-            text += f", error ETA ~{more * stats.seconds_per_spp():.0f} s"
+            if stats.trusted:
+                needed = math.ceil(stats.spp * stats.estimated_relmse / budget.target_error)
+                more = (needed - stats.spp) * stats.seconds_per_spp()
+                text += f", target {budget.target_error:g} projected at {needed} spp, {_duration(more)} more"
+            else:
+                text += f", target {budget.target_error:g}: no projection until the estimate is trusted"
     return text
+
+
+def _duration(seconds: float) -> str:
+    """``~N s`` below two minutes, ``~N min`` below two hours, else ``~N.N h``."""
+    if not math.isfinite(seconds):
+        return "~? s"
+    if seconds < 120:
+        return f"~{seconds:.0f} s"
+    return f"~{seconds / 60:.0f} min" if seconds < 7200 else f"~{seconds / 3600:.1f} h"
+
+
+def status_line(budget: Budget, stats: PassStats) -> str:
+    """The line a render without a terminal writes every :data:`STATUS_SECONDS`.
+
+    Examples
+    --------
+    >>> from pointillist.progressive import Budget, status_line
+    >>> from pointillist.progressive.stats import PassStats
+    >>> stats = PassStats(passes=12, spp=96, pass_spp=8, seconds=45.0, pass_seconds=3.0, pass_compile_seconds=0.0,
+    ...                   compile_seconds=0.5, estimated_relmse=0.004, width=64, height=64, trusted=True)
+    >>> status_line(Budget(target_error=0.002), stats)
+    'render: 45 s, 12 passes, 96 spp, est. relMSE 0.004, target 0.002 projected at 192 spp, ~36 s more'
+    """
+    return f"render: {stats.seconds:.0f} s, " + _postfix(budget, stats)
 
 
 def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params: dict[str, str] | None = None,
@@ -291,8 +328,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
         if abandon is not None:
             abandon(finish("interrupted", signals.received(), done=current))
 
-    last_write = clock()
+    last_write = last_status = clock()
     bar = _bar(budget, start, progress)
+    status = progress and not draws_progress(progress)   # no bar drawn: a line every STATUS_SECONDS
     try:
         with signals.deferred() as requested, signals.on_abandon(abandoned):
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
@@ -307,6 +345,9 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                 done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums),
                         "first_nonfinite": first_nonfinite}
                 bar.set_postfix_str(_postfix(budget, stats), refresh=False)
+                if status and clock() - last_status >= STATUS_SECONDS:
+                    print(status_line(budget, stats), file=sys.stderr, flush=True)
+                    last_status = clock()
                 if requested() is not None:  # first signal: stop after the pass in flight
                     stop, signum = "interrupted", requested()
                     break
