@@ -4,10 +4,12 @@ Each page's ``sh`` blocks run line by line, in order, in a folder made like a re
 inputs of ``pointillist data`` (``scene.xml``, ``photo.png``, ``head.nii.gz``, ...), the repository's
 ``scenes/``, ``my.xml`` (a copy of the sample scene) and ``out/default.exr`` (what ``./run demo``
 renders first). The pages share the folder, as one reader following them would (a sweep a second
-page repeats reuses the first's renders, as the compare guide says). Every command must exit 0 and
-write the files its ``-o`` names (and the PNG of ``--png``); the ``python`` blocks run as files there
-and must exit 0. A line that cannot run here matches one of :data:`NOT_RUN`, which says why. The mip
-and the differentiable guides' blocks run with their outputs checked in tests/test_data.py.
+page repeats reuses the first's renders, as the compare guide says). Every command must exit 0, write
+the files its ``-o`` names (the PNG of ``--png`` too) and those its comment names under ``out/``, and
+a render must print the line the pages describe (the timing line, or the end line of its passes);
+the ``python`` blocks run as files there and must exit 0. A line that cannot run here matches one of
+:data:`NOT_RUN`, which says why. The mip and the differentiable guides' blocks run with their outputs
+checked in tests/test_data.py.
 """
 
 from __future__ import annotations
@@ -90,7 +92,7 @@ def test_the_examples_run_as_written(page, reader_folder):
             ran += 1
             continue
         for line in block.strip().splitlines():
-            command = re.split(r"\s+#\s", line)[0].strip()
+            command, _, comment = [part.strip() for part in re.split(r"\s+(#)\s", line, maxsplit=1) + ["", ""]][:3]
             if not command or _skipped(command):
                 continue
             where = ROOT if re.match(FROM_THE_CLONE, command) else folder
@@ -101,6 +103,13 @@ def test_the_examples_run_as_written(page, reader_folder):
                 assert (folder / output).exists() or (folder / output.replace(".png", "_000.png")).exists(), command
                 if " --png" in command and output.endswith(".exr"):
                     assert (folder / output).with_suffix(".png").is_file(), command
+            if re.match(r"pointillist render .*--(time|target-error) ", command):   # the end line of passes
+                assert re.search(r"\d+ spp in \d+ passes, .*, stopped by \w+$", done.stdout, re.M), command
+            elif command.startswith("pointillist render") and "--tiles" not in command:   # the timing line
+                assert re.search(r"^time: load [\d.]+ s, trace [\d.]+ s, JIT compile [\d.]+ s \(\d+ kernels, "
+                                 r"\d+ from cache\), render [\d.]+ s, total [\d.]+ s$", done.stdout, re.M), command
+            for named in re.findall(r"\b(out/[\w./-]+\.(?:png|exr|gif|html|csv|md))", comment):  # "# + out/turn.gif"
+                assert (folder / named).is_file(), (command, named)
             ran += 1
     assert ran or all(_skipped(line) for kind, block in _blocks(page) for line in block.strip().splitlines()
                       if kind == "sh"), f"{page.name}: nothing ran"

@@ -62,3 +62,31 @@ def test_each_ratio_is_in_the_results(row):
     if faster:
         ratios = [float(n) for n in re.findall(NUMBER, plain)]
         assert round(1 / max(ratios)) == int(faster.group(1)) and round(1 / min(ratios)) == int(faster.group(2))
+
+
+#: Figures of the guides that are derived from RESULTS.md rather than quoted: figure -> the numbers
+#: it is derived from (each must be in RESULTS.md) and how.
+DERIVED = {
+    "5-300x": (("0.18", "3e-03"), "the inverses of true / estimate on the tiny light's glint (estimator block)"),
+}
+
+
+def _guide_pages():
+    docs = ROOT / "docs"
+    return sorted((docs / "guides").glob("*.md")) + [docs / "robustness.md"]
+
+
+@pytest.mark.parametrize("page", _guide_pages(), ids=lambda p: p.name)
+def test_the_guides_ratios_are_in_the_results(page):
+    """Every ratio a guide's prose quotes (``0.47x``, ``2-4.6x``) is a number of benchmarks/RESULTS.md,
+    or derived from some (:data:`DERIVED`, which names them)."""
+    results = "".join(_blocks())
+    written = _tokens(results)
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    for match in re.finditer(rf"(?<![\w.])({NUMBER})(?:-({NUMBER}))?x(?!\w)", text):
+        if match.group(0) in DERIVED:
+            sources, _ = DERIVED[match.group(0)]
+            assert all(source in results for source in sources), match.group(0)
+            continue
+        for number in filter(None, match.groups()):
+            assert number in written, f"{page.name}: {match.group(0)} is not in benchmarks/RESULTS.md"

@@ -29,7 +29,8 @@ PICTURES = {
     "whitted": "whitted on the sample scene: mirror, glass and Phong spheres over a Lambert checkerboard",
     "phong": "phong: a Cornell box with a Phong sphere, exponents 10, 100 and 1000",
     "samplers": "grid, jitter, poisson, sobol and zsobol: 64 samples in one pixel",
-    "compare": "error against spp on scenes/edges.xml for random, jitter and zsobol (mean of two seeds)",
+    "compare": ("error against spp on scenes/edges.xml for random, jitter and zsobol (mean of two seeds), and the "
+                "power spectrum of each one's error at 4 spp (zsobol's is blue noise: little at low frequencies)"),
     "adaptive": "adaptive super-sampling: the render and its samples per pixel",
     "progressive": "a render with a 2 s budget: the estimated error against time",
     "tone": "tone maps of an HDR render: clip, reinhard, reinhard_extended, hable, aces, log",
@@ -97,15 +98,22 @@ def main(out: Path) -> None:
 
     edges = ROOT / "scenes" / "edges.xml"        # thin edges and a checkerboard: where patterns differ
     reference = np.asarray(mi.render(mi.load_file(str(edges), res="64", spp="1"), spp=1024, seed=1000))[..., :3]
-    fig, ax = plt.subplots(figsize=(4.5, 3.2))
+    from pointillist.imaging.spectrum import radial_power_spectrum
+
+    fig, (ax, ax_spectrum) = plt.subplots(1, 2, figsize=(10, 3.4), gridspec_kw={"wspace": 0.35})
     for name in ("random", "jitter", "zsobol"):
         errors = []
         for spp in (1, 4, 16, 64):
             s = load_configured_scene(edges, METHODS[name], spp, {"res": "64"})
             images = [np.asarray(mi.render(s, seed=seed))[..., :3] for seed in (3, 4)]
             errors.append(float(np.mean([np.mean((image - reference) ** 2) for image in images])))
+            if spp == 4:        # where the error of 4 spp lies: its radially averaged power spectrum
+                spectrum = radial_power_spectrum((images[0] - reference).mean(axis=2))
+                ax_spectrum.semilogy(spectrum.frequency, spectrum.power, label=name)
         ax.loglog((1, 4, 16, 64), errors, "o-", label=name)
     ax.set_xlabel("samples per pixel"), ax.set_ylabel("MSE against 1024 spp"), ax.legend()
+    ax_spectrum.set_xlabel("frequency (cycles per pixel)"), ax_spectrum.set_ylabel("error power, 4 spp")
+    ax_spectrum.legend()
     _save(fig, out / "compare.png")
 
     # adaptive
