@@ -8,6 +8,7 @@ example), so that the documentation's shell examples run as written from inside 
 file                   what
 =====================  ==========================================================================
 ``scene.xml``          the default scene (Mitsuba XML, ``whitted``, 256x256)
+``render.exr``         that scene rendered (128x128, 16 spp): a linear HDR EXR to post-process
 ``photo.png``          scikit-image's ``astronaut`` (512x512 RGB), an image to post-process
 ``head.nii.gz``        the 3-D Shepp-Logan phantom, 64^3 int16 HU, NIfTI (RAS affine, 1 mm)
 ``head.nhdr``          the same, NRRD with a detached header (``head.raw.gz``, gzip data, LPS)
@@ -33,8 +34,8 @@ from pointillist.core.files import atomic_write
 __all__ = ["SAMPLE_FILES", "write_sample_data"]
 
 #: The files :func:`write_sample_data` writes (a folder for the DICOM series), in order.
-SAMPLE_FILES = ("scene.xml", "photo.png", "head.nii.gz", "head.nhdr", "head.raw.gz", "head.npy", "ct_series",
-                "fmri.nii.gz")
+SAMPLE_FILES = ("scene.xml", "render.exr", "photo.png", "head.nii.gz", "head.nhdr", "head.raw.gz", "head.npy",
+                "ct_series", "fmri.nii.gz")
 
 #: The phantom's size (voxels a side) and spacing (mm).
 _SIZE, _SPACING = 64, 1.0
@@ -58,7 +59,8 @@ def write_sample_data(folder: str | os.PathLike) -> list[Path]:
     from pointillist.imaging.volumes import shepp_logan_phantom
 
     phantom = shepp_logan_phantom(_SIZE)  # (Z, Y, X) int16 HU; z superior, y posterior, x left (LPS)
-    written = [_scene(folder / "scene.xml"), _photo(folder / "photo.png")]
+    written = [_scene(folder / "scene.xml")]
+    written += [_render(folder / "scene.xml", folder / "render.exr"), _photo(folder / "photo.png")]
     written += [_nifti(folder / "head.nii.gz", phantom), *_nrrd(folder / "head.nhdr", phantom),
                 _npy(folder / "head.npy", phantom), _dicom_series(folder / "ct_series", phantom),
                 _copy(_nibabel_example(), folder / "fmri.nii.gz")]
@@ -70,6 +72,14 @@ def _scene(path: Path) -> Path:
     if not source.is_file():
         raise UsageError("the sample scene is the repository's scenes/default.xml: run from a clone of it")
     return _copy(source, path)
+
+
+def _render(scene: Path, path: Path) -> Path:
+    """The sample scene rendered small, as `pointillist render` writes it (metadata included)."""
+    from pointillist.render import render_file
+
+    render_file(scene, path, spp=16, params={"res": "128"}, threads=None)
+    return path
 
 
 def _copy(source: Path, path: Path) -> Path:

@@ -13,7 +13,7 @@ def sample(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sample") / "data"
     done = run_cli("data", folder)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == (f"wrote 8 sample inputs in {folder}: scene.xml, photo.png, head.nii.gz, "
+    assert done.stdout.strip() == (f"wrote 9 sample inputs in {folder}: scene.xml, render.exr, photo.png, head.nii.gz, "
                                    "head.nhdr, head.raw.gz, head.npy, ct_series, fmri.nii.gz")
     return folder
 
@@ -119,3 +119,13 @@ def test_the_differentiable_guide_runs_as_written_on_the_sample_data(sample, tmp
     assert len(found) == 3, done.stdout
     errors = np.concatenate([np.array(f.split(), float) - np.array(t.split(), float) for f, t in found])
     assert np.abs(errors).max() < 0.015 and np.sqrt(np.mean(errors ** 2)) < 0.01, done.stdout
+
+
+def test_the_sample_render_is_the_sample_scene_as_render_writes_it(sample):
+    """render.exr: the sample scene at 128x128 and 16 spp, with the metadata `pointillist render` writes."""
+    from pointillist.imaging.io import read_exr
+
+    exr = read_exr(sample / "render.exr")
+    assert exr.image.shape == (128, 128, 3) and np.isfinite(exr.image).all() and exr.image.max() > 0.5
+    assert exr.metadata["spp"] == 16 and exr.metadata["integrator"] == "whitted"
+    assert exr.metadata["seed"] == 0 and exr.metadata["sampler"] == "independent"

@@ -242,6 +242,19 @@ def test_the_gallery_shows_every_picture_and_each_guide_one(site):
             assert shown(site.html / "guides" / f"{guide.stem}.html"), f"{guide.name}: no gallery picture"
 
 
+def test_each_guide_opens_in_headless_chromium_with_its_picture(site, tmp_path):
+    """Every guide page, opened in Chromium: no console message, and its gallery picture loaded (the
+    DOM after the scripts ran names a picture of docs/gallery/make.py)."""
+    pictures = _gallery_pictures()
+    for guide in sorted((DOCS / "guides").glob("*.md")):
+        if guide.stem == "index":
+            continue
+        done = run_chromium(site.html / "guides" / f"{guide.stem}.html", tmp_path, "--dump-dom", fragment="")
+        assert done.returncode == 0 and console(done.stderr) == [], (guide.name, console(done.stderr))
+        shown = {Path(src).stem for src in re.findall(r'<img[^>]+src="([^"]+)"', done.stdout)}
+        assert shown & set(pictures), f"{guide.name}: no gallery picture in the page"
+
+
 def test_notebooks_ran_and_show_their_outputs(site):
     notebooks = sorted((ROOT / "notebooks").glob("*.ipynb"))
     assert notebooks
