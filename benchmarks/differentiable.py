@@ -143,20 +143,6 @@ def _steps(mi, res, spp, rounds):
     return {name: statistics.median(t) for name, t in times.items()}
 
 
-def _cpu() -> str:
-    model, flags = "unknown CPU", ""
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name") and model == "unknown CPU":
-                model = line.split(":", 1)[1].strip()
-            if line.startswith("flags") and not flags:
-                flags = line
-    except OSError:
-        pass
-    isa = "AVX-512" if " avx512f" in flags else "AVX2" if " avx2" in flags else "no AVX2"
-    return f"{model} ({isa}), {os.cpu_count()} cores"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--res", type=int, default=64)
@@ -170,6 +156,7 @@ def main(argv=None) -> int:
         memory_child(args.memory_child, args.res, args.spp)
         return 0
     import drjit as dr
+    from startup import cpu_facts
 
     memory = {name: _memory(name, args.res, args.spp) for name in INTEGRATORS}
     mi = _setup()
@@ -178,7 +165,8 @@ def main(argv=None) -> int:
     lines = [
         "## Gradients: whitted against Mitsuba's prb",
         "",
-        f"Machine: {_cpu()}, {platform.platform()}; Python {platform.python_version()}, Mitsuba {mi.__version__}, "
+        f"Machine: {cpu_facts()}, {os.cpu_count()} cores, {platform.platform()}; "
+        f"Python {platform.python_version()}, Mitsuba {mi.__version__}, "
         f"Dr.Jit {dr.__version__}. Load average after: {', '.join(f'{x:.1f}' for x in os.getloadavg())}. "
         f"Reproduce: `flock /tmp/pointillist-bench.lock .venv/bin/python benchmarks/differentiable.py "
         f"--res {args.res} --spp {args.spp} --step-spp {args.step_spp} --rounds {args.rounds} --write`.",
