@@ -21,7 +21,7 @@ import warnings
 from pointillist import __version__
 
 from pointillist.core import signals
-from pointillist.core.errors import Terminated, UsageError
+from pointillist.core.errors import ClusterError, Terminated, UsageError
 
 __all__ = ["main", "build_parser"]
 
@@ -117,6 +117,9 @@ def _run(args: argparse.Namespace, name: str) -> int:
     except UsageError as error:
         print(f"{name}: error: {error}", file=sys.stderr)
         return 2
+    except ClusterError as error:  # not the user's input: the cluster went away
+        print(f"{name}: error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as interrupt:  # also Terminated (SIGTERM)
         signum = signals.received()
         if signum is None:

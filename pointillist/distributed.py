@@ -198,12 +198,13 @@ def connect(address: str, *, timeout: float = 10.0, drjit_threads: int | None = 
 
 @contextlib.contextmanager
 def open_client(workers: int | None = None, scheduler: str | None = None, *,
-                tasks: int | None = None) -> Iterator[Any]:
+                tasks: int | None = None, drjit_threads: int | None = None) -> Iterator[Any]:
     """Context manager: a Dask client for ``workers`` or ``scheduler``, or ``None`` (serial).
 
     Raises UsageError if both are given. The local cluster (``workers``) is
     shut down on exit; a remote cluster (``scheduler``) is only disconnected. With ``tasks`` (how
     many tasks will run), a local cluster has no more workers than tasks (a warning says so).
+    ``drjit_threads``: each local worker's Dr.Jit threads (:func:`start_cluster`).
     """
     if workers is not None and scheduler is not None:
         raise UsageError("--workers and --scheduler: give one or the other, not both")
@@ -215,14 +216,31 @@ def open_client(workers: int | None = None, scheduler: str | None = None, *,
 
         warnings.warn(f"--workers {workers}: only {tasks} task(s) to run; starting {tasks} worker(s)", stacklevel=3)
         workers = tasks
-    client = start_cluster(workers) if workers is not None else connect(scheduler)
+    client = start_cluster(workers, drjit_threads=drjit_threads) if workers is not None else connect(scheduler)
     try:
-        yield client
+        with _quiet_client():
+            yield client
     finally:
         cluster = client.cluster if workers is not None else None
-        client.close()
+        with _quiet_client(), contextlib.suppress(Exception):  # a cluster that went away: nothing to close
+            client.close()
         if cluster is not None:
             cluster.close()
+
+
+@contextlib.contextmanager
+def _quiet_client() -> Iterator[None]:
+    """Dask's client logs the tracebacks of its attempts to reconnect to a scheduler that went away;
+    the work that needed it says so in one line (:class:`pointillist.core.errors.ClusterError`)."""
+    import logging
+
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 # --------------------------------------------------------------------------- keys, cache and task runner

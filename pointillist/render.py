@@ -57,7 +57,8 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
     ``scheduler`` or ``cache`` render the film as crop-window tiles
     (:func:`pointillist.tiles.render_tiled`), on a Dask cluster with the latter two.
 
-    Progressive rendering (:mod:`pointillist.progressive`): with ``time_budget`` (seconds),
+    Progressive rendering (:mod:`pointillist.progressive`; in tiles, on a cluster with ``workers``
+    or ``scheduler``: :mod:`pointillist.progressive.tiled`): with ``time_budget`` (seconds),
     ``target_error`` (estimated relMSE), ``pass_spp``, ``checkpoint`` (seconds between writes of
     ``OUT.checkpoint.npz``) or ``resume``, the render runs in passes until the budget is spent
     (``spp`` caps it; with neither time nor error budget, ``spp`` or the scene's is the total),
@@ -88,9 +89,11 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         threads = integer(threads, "threads", low=1, high=1024)
         if progressive or tiled:
             raise UsageError("--threads: only for a render in one piece (not with passes or tiles)")
-    if progressive and tiled:
-        raise UsageError("--tiles/--workers/--scheduler/--cache: not with progressive rendering "
-                         "(--time, --target-error, --pass-spp, --variance-layer, --checkpoint, --resume)")
+    if progressive and cache:
+        raise UsageError("--cache: not with progressive rendering (--time, --target-error, --pass-spp, "
+                         "--variance-layer, --checkpoint, --resume); --checkpoint keeps its passes")
+    if progressive and workers is not None and scheduler is not None:
+        raise UsageError("--workers and --scheduler: give one or the other, not both")
     scene = check_scene_file(scene)
     out = output_path(str(scene), None if output is None else str(output))
     default = output is None
@@ -104,7 +107,8 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         outputs.append(Output(csv_path, "progress log", make_parent=default))
         if png:
             outputs.append(Output(plot_path, "progress plot", make_parent=default))
-        if checkpoint is not None:
+        if checkpoint is not None or workers is not None or scheduler is not None:
+            # on a cluster the checkpoint is also where the rounds done go when the scheduler is lost
             outputs.append(Output(checkpoint_path(out), "--checkpoint", make_parent=default))
     if cache:
         outputs.append(Output(Path(cache), "--cache", folder=True))
@@ -128,7 +132,8 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
             summary = _render_progressive(loaded, scene, out, png_path, info, params, seed=seed, png=png,
                                           load_s=load_s, time_budget=time_budget, target_error=target_error, spp=spp,
                                           pass_spp=pass_spp, variance_layer=variance_layer, checkpoint=checkpoint,
-                                          resume=resume, plan=plan, layout=layout)
+                                          resume=resume, plan=plan, layout=layout, tiles=tiles, workers=workers,
+                                          scheduler=scheduler)
             summary.recentring = parsed.recentring
             return summary
         spp = spp or info["spp"]
@@ -188,11 +193,15 @@ def _warn_nonfinite(image, layout) -> None:
 
 def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: dict, params: dict, *, seed: int,
                         png: bool, load_s: float, time_budget, target_error, spp, pass_spp, variance_layer: bool,
-                        checkpoint, resume: bool, plan, layout) -> RenderSummary:
+                        checkpoint, resume: bool, plan, layout, tiles=None, workers=None,
+                        scheduler=None) -> RenderSummary:
     """The progressive branch of :func:`render_file`: passes, EXR with their metadata, progress log.
 
-    A second signal during the passes abandons the pass in flight: the EXR and the progress log
-    of the passes done are written then (no PNG: the process ends at once).
+    With ``tiles``, ``workers`` or ``scheduler`` the passes are tiles' passes in rounds
+    (:func:`pointillist.progressive.tiled.render_progressive_tiled`), on a Dask cluster with the
+    latter two (default tiles :data:`~pointillist.progressive.tiled.DEFAULT_TILES`). A second signal
+    during the passes abandons the pass in flight: the EXR and the progress log of the passes done
+    are written then (no PNG: the process ends at once).
     """
     from pointillist.core import signals
     from pointillist.progressive import Budget, checkpoint_path, render_progressive, write_progress
@@ -202,16 +211,34 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
     budget = Budget(seconds=time_budget, target_error=target_error, spp=spp, pass_spp=pass_spp)
 
     def write(result, *, png: bool) -> None:
-        layers = {"variance": result.variance} if variance_layer else None
+        layers = {"variance": result.variance} if variance_layer else {}
+        if result.spp_map is not None:   # in tiles: where the samples went
+            layers["tile_spp"] = result.spp_map
         write_render(out, result.image, loaded, str(scene), dict(info, **result.metadata), result.timing, png=png,
                      extra_layers=layers, layout=layout, inputs=plan.inputs)
         write_progress(out, result.history, png=png, inputs=plan.inputs)
 
-    result = render_progressive(loaded, scene, budget, params=params, seed=seed, checkpoint_seconds=checkpoint,
-                                checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,
-                                resume=resume, progress=True, inputs=plan.inputs, layout=layout,
-                                abandon=lambda partial: write(partial, png=False))
+    where = None
+    if tiles or workers is not None or scheduler is not None:
+        from pointillist.distributed import open_client
+        from pointillist.progressive.tiled import DEFAULT_TILES, render_progressive_tiled
+
+        tiles = tiles or DEFAULT_TILES
+        cluster = workers is not None or scheduler is not None
+        with open_client(workers, scheduler, drjit_threads=1) as client:
+            where = ("in process" if client is None else f"on {len(client.scheduler_info(n_workers=-1)['workers'])} "
+                     f"worker(s) at {client.scheduler.address}")
+            result = render_progressive_tiled(
+                loaded, scene, budget, tiles=tiles, params=params, seed=seed, client=client,
+                checkpoint_seconds=checkpoint,
+                checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume or cluster else None,
+                resume=resume, progress=True, inputs=plan.inputs, layout=layout)
+    else:
+        result = render_progressive(loaded, scene, budget, params=params, seed=seed, checkpoint_seconds=checkpoint,
+                                    checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,
+                                    resume=resume, progress=True, inputs=plan.inputs, layout=layout,
+                                    abandon=lambda partial: write(partial, png=False))
     with signals.on_abandon(lambda: write(result, png=False)):  # a second signal while writing: the EXR still is
         write(result, png=png)
     return RenderSummary(exr=out, png=png_path, info=info, spp=result.stats.spp, timing=result.timing,
-                         load_seconds=load_s, progressive=result)
+                         load_seconds=load_s, progressive=result, tiles=tiles, where=where)

@@ -119,13 +119,20 @@ DEFAULT_INTEGRATOR = "path"
 
 
 def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text: str | None = None,
-                what: str = "") -> ParsedScene:
+                what: str = "", merge_meshes: bool = True) -> ParsedScene:
     """Parse a Mitsuba scene file with ``$param`` overrides, without building it.
 
     ``text``, when given, is parsed instead of the file's contents (relative paths still resolve
     against the file's folder). Errors become one-line UsageErrors (``what`` is added to their
     subject, e.g. ``" with jitter"``). The variant must be set
     (:func:`pointillist.setup`).
+
+    ``merge_meshes``: Mitsuba's optimisation that merges the meshes sharing a BSDF (on, as in
+    ``mi.load_file``). It orders the scene's shapes, and so its emitters, by a hash of addresses that
+    changes from process to process: on a scene with several emitters the light a sample picks, and
+    so the image, then differs between processes even on one thread. Off: each shape as declared, the
+    same scene in every process (what renders that must agree across processes load: a tiled
+    progressive render's passes, :mod:`pointillist.progressive.tiled`).
     """
     import mitsuba as mi
 
@@ -135,6 +142,7 @@ def parse_scene(path: str | Path, params: dict[str, str] | None = None, *, text:
     # parallel=False: Mitsuba's parallel loader instantiates plugins in a random order, which
     # changes the generated kernels from run to run and defeats the ~/.drjit kernel cache.
     config.parallel = False
+    config.merge_meshes = bool(merge_meshes)
     try:
         with resolving_from(path.resolve().parent):
             if text is None:
@@ -238,14 +246,15 @@ def attach_films(scene) -> None:
             attach(sensor.film())
 
 
-def load_scene(path: str | Path, params: dict[str, str] | None = None):
+def load_scene(path: str | Path, params: dict[str, str] | None = None, *, merge_meshes: bool = True):
     """Load a Mitsuba scene file with ``$param`` overrides; errors become one-line UsageErrors.
 
-    :func:`parse_scene`, then the scene re-expressed relative to its first sensor where it sits far
-    from the origin (:mod:`pointillist.camera_relative`), then :func:`instantiate_scene`. The
-    variant must be set and the plugins registered (:func:`pointillist.setup`).
+    :func:`parse_scene` (``merge_meshes``: see there), then the scene re-expressed relative to its
+    first sensor where it sits far from the origin (:mod:`pointillist.camera_relative`), then
+    :func:`instantiate_scene`. The variant must be set and the plugins registered
+    (:func:`pointillist.setup`).
     """
-    return instantiate_scene(make_camera_relative(parse_scene(path, params)))
+    return instantiate_scene(make_camera_relative(parse_scene(path, params, merge_meshes=merge_meshes)))
 
 
 def check_scene_file(path: str | Path) -> Path:
@@ -349,7 +358,9 @@ def thread_count(threads: int | None):
     count before is restored after. On one thread the film's atomic additions of samples that land
     on the same pixel (any filter wider than a pixel, the particle tracer) come in one fixed order,
     so a render is the same to the last bit on every run, as Mitsuba's own renders on one thread
-    are; on several the order, and so the last bit, varies from run to run. Used around rendering,
+    are; on several the order, and so the last bit, varies from run to run. (Across processes, a
+    scene with several emitters loaded with Mitsuba's mesh merging may order its emitters otherwise:
+    :func:`parse_scene`'s ``merge_meshes``.) Used around rendering,
     and around Mitsuba's EXR writer, which never returns on a pool of one thread (Mitsuba 3.9.1): never
     around loading, as Mitsuba's scene loading waits on its own parallel tasks and must keep its threads."""
     import drjit as dr

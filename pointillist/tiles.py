@@ -223,8 +223,9 @@ _SCENES: OrderedDict = OrderedDict()
 
 _SCENE_CACHE_SIZE = 2
 
-def _scene_for(task: RenderTask):
-    """Load (or reuse) the task's scene in this process; returns (scene, sensor params, window, load s)."""
+def _scene_for(task: RenderTask, *, merge_meshes: bool = True):
+    """Load (or reuse) the task's scene in this process; returns (scene, sensor params, window, load s).
+    ``merge_meshes``: :func:`pointillist.scene.parse_scene`'s."""
     import mitsuba as mi
 
     from pointillist.scene import load_scene
@@ -234,12 +235,12 @@ def _scene_for(task: RenderTask):
         stamp = path.stat().st_mtime_ns
     except OSError:
         raise UsageError(f"scene: no such file: {path}") from None
-    key = (str(path.resolve()), stamp, task.params, task.inputs_sha256)
+    key = (str(path.resolve()), stamp, task.params, task.inputs_sha256, merge_meshes)
     entry = _SCENES.get(key)
     load_s = 0.0
     if entry is None:
         start = time.perf_counter()
-        scene = load_scene(path, dict(task.params))
+        scene = load_scene(path, dict(task.params), merge_meshes=merge_meshes)
         load_s = time.perf_counter() - start
         entry = {"scene": scene, "sensors": {}}
         _SCENES[key] = entry
@@ -267,13 +268,15 @@ def _set_crop(mi, params, crop, size) -> None:
     params["film.crop_size"] = mi.ScalarVector2u(crop[2], crop[3])
     params.update()
 
-def render_task(task: RenderTask) -> RenderResult:
+def render_task(task: RenderTask, *, exact: bool = False) -> RenderResult:
     """Render one :class:`RenderTask` in this process (a Dask worker or the client).
 
     Sets up Mitsuba if needed, loads the scene (the last two scenes stay
     loaded per process), sets the film's crop window, renders with
-    :func:`pointillist.scene.timed_render` and returns the image as numpy with
-    the timing measured here.
+    :func:`pointillist.scene.timed_render` and returns the image as numpy with the timing measured
+    here. ``exact``: the same image to the last bit in every process: the scene loaded without
+    Mitsuba's mesh merging (which orders emitters differently in each process,
+    :func:`pointillist.scene.parse_scene`) and rendered on one thread.
 
     Raises
     ------
@@ -285,9 +288,9 @@ def render_task(task: RenderTask) -> RenderResult:
     mi = setup_process()
     from pointillist.scene import timed_render
 
-    scene, params, window, size, load_s = _scene_for(task)
+    scene, params, window, size, load_s = _scene_for(task, merge_meshes=not exact)
     _set_crop(mi, params, task.crop or window, size)
-    image, timing = timed_render(scene, spp=task.spp, seed=task.seed, sensor=task.sensor)
+    image, timing = timed_render(scene, spp=task.spp, seed=task.seed, sensor=task.sensor, threads=1 if exact else None)
     pixels = np.array(image, dtype=np.float32, copy=True)
     del image
     return RenderResult(image=pixels, timing=dict(timing.as_dict(), load=load_s),

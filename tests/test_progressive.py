@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from pointillist.cli import main
 from pointillist.imaging.io import read_exr
+from pointillist.progressive.stats import history_row, settled
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ROOT / "scenes"
@@ -435,8 +436,11 @@ def _simulate(budget, *, overhead, per_spp, compile_s=1.0, width=256, height=256
                         sizes=stats.sizes if n in stats.sizes else (*stats.sizes, n),
                         size_compile_seconds=stats.size_compile_seconds if n in stats.sizes else compiled,
                         pass_seconds=seconds, pass_compile_seconds=compiled,
-                        estimated_relmse=error / spp if error and passes >= 8 else math.nan,
+                        estimated_relmse=(error(spp) if callable(error) else error / spp) if error and passes >= 8
+                        else math.nan,
                         trusted=bool(error) and passes >= 8)
+        stats = replace(stats, settled=stats.trusted and settled([history_row(s) for s in history], spp,
+                                                                 stats.estimated_relmse))
         history.append(stats)
         assert len(history) < 100000
     return history
@@ -520,10 +524,32 @@ def test_error_budget_stops_at_the_first_estimate_below_and_does_not_overshoot()
 
     history = _simulate(Budget(target_error=0.002, pass_spp=16), overhead=0.01, per_spp=1e-3, error=1.0)
     # error = 1 / spp: needs 500 spp; passes of 16 up to there, then shrunk to land on it.
-    assert history[-1].estimated_relmse <= 0.002 < history[-2].estimated_relmse or len(history) == MIN_PASSES
+    assert history[-1].estimated_relmse <= 0.002 < history[-2].estimated_relmse
     assert 500 <= history[-1].spp <= 512
+    # the first estimate (pass 8, 128 spp) is below the target at once: the render goes on until the
+    # estimate has held over a doubling of the samples (the rare-path rule), 256 spp
     early = _simulate(Budget(target_error=0.5, pass_spp=16), overhead=0.01, per_spp=1e-3, error=1.0)
-    assert len(early) == MIN_PASSES   # no estimate, so no stop, before MIN_PASSES passes
+    assert early[MIN_PASSES - 1].estimated_relmse < 0.5 and not early[MIN_PASSES - 1].settled
+    assert [s.spp for s in early][-1] == 256 and early[-1].settled
+    auto = _simulate(Budget(target_error=0.5), overhead=0.01, per_spp=1e-3, error=1.0)
+    assert auto[-1].spp == 16   # passes of 1 spp to the first estimate at 8, then to 16
+
+
+def test_error_budget_waits_for_a_rare_path_it_has_not_had_the_chance_to_find():
+    """The first estimate (8 passes of 1 spp) is below the target, but a path found at 12 spp raises the
+    error per spp tenfold: the old rule stopped at 8 spp with 10x the error it claimed; the rare-path
+    rule renders on until the estimate, with the path in it, has held over a doubling of the spp."""
+    from pointillist.progressive import Budget
+
+    def error(spp):
+        return (1.0 if spp < 12 else 10.0) / spp
+
+    history = _simulate(Budget(target_error=0.2), overhead=0.01, per_spp=1e-3, error=error)
+    first = next(s for s in history if s.trusted and s.estimated_relmse <= 0.2)
+    assert first.spp == 8 and not first.settled          # where the render used to stop
+    assert history[-1].settled and history[-1].estimated_relmse <= 0.2 and history[-1].spp >= 50
+    steady = _simulate(Budget(target_error=0.2), overhead=0.01, per_spp=1e-3, error=lambda spp: 1.0 / spp)
+    assert steady[-1].spp == 16                           # without the path: 16 spp, the rule's least
 
 
 def test_error_budget_does_not_stop_on_an_untrusted_estimate():
@@ -534,8 +560,11 @@ def test_error_budget_does_not_stop_on_an_untrusted_estimate():
     stats = _stats(passes=10, spp=64, pass_spp=8, seconds=1.0, pass_seconds=0.1, estimated_relmse=0.004,
                    halves_ratio=7.0, trusted=False)
     assert budget.stop_reason(stats) is None and budget(stats) == 16
-    assert budget.stop_reason(replace(stats, trusted=True, halves_ratio=1.3)) == "error"
-    assert budget(replace(stats, trusted=True, halves_ratio=1.3)) == 0
+    assert budget.stop_reason(replace(stats, trusted=True, halves_ratio=1.3, settled=True)) == "error"
+    assert budget(replace(stats, trusted=True, halves_ratio=1.3, settled=True)) == 0
+    # trusted but not settled (not yet held over a doubling): passes of a quarter of the spp go on
+    assert budget.stop_reason(replace(stats, trusted=True, halves_ratio=1.3)) is None
+    assert budget(replace(stats, trusted=True, halves_ratio=1.3)) == 16
     # above the target: a quarter of the spp so far, or the 1/spp law's remaining spp if smaller and trusted
     assert budget(replace(stats, estimated_relmse=0.02)) == 16
     assert budget(replace(stats, estimated_relmse=0.0105, trusted=True)) == 4      # 64 * 0.05 = 3.2 -> 4
@@ -629,7 +658,7 @@ def _bad(capsys, *argv):
     (["--target-error", "-1"], "argument --target-error: expected a positive number, got '-1'"),
     (["--pass-spp", "0"], "argument --pass-spp: expected a positive integer"),
     (["--checkpoint", "inf"], "argument --checkpoint: expected a positive number"),
-    (["--time", "1", "--tiles", "2x2"], "not with progressive rendering"),
+    (["--time", "1", "--cache", "cache-folder"], "--cache: not with progressive rendering"),
     (["--resume"], "--resume: no checkpoint"),
 ])
 def test_cli_bad_input_exit_2_one_line(capsys, tmp_path, mi, argv, message):

@@ -150,7 +150,7 @@ def test_no_more_local_workers_than_tasks(monkeypatch):
         def close(self):
             pass
 
-    monkeypatch.setattr(distributed, "start_cluster", lambda n: started.append(n) or Client())
+    monkeypatch.setattr(distributed, "start_cluster", lambda n, **_: started.append(n) or Client())
     with pytest.warns(UserWarning, match=r"--workers 12: only 4 task\(s\) to run; starting 4 worker\(s\)"):
         with distributed.open_client(12, None, tasks=4):
             pass

@@ -49,7 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     dist = parser.add_argument_group("tiles and Dask distributed (pointillist.tiles)")
     dist.add_argument("--tiles", type=tiles_arg, metavar="RxC",
                       help="split the film into R x C crop-window tiles, one task each, tile i seeded "
-                           "(seed*R*C + i) mod 2^32 (default: one untiled render)")
+                           "(seed*R*C + i) mod 2^32 (default: one untiled render); with progressive rendering, "
+                           "rounds of tile passes, pass k of tile i seeded (TEA(seed, i) + k) mod 2^32, each on one "
+                           "thread (the same EXR on any number of workers), --target-error giving the passes to "
+                           "the noisiest tiles (default on a cluster: 4x4)")
     add_cluster_options(dist, work="render the tiles", shared="the workers read the scene by the same path")
     dist.add_argument("--cache", metavar="DIR",
                       help="keep finished tiles in DIR; a rerun renders only the missing ones")
@@ -86,7 +89,9 @@ def run(args: argparse.Namespace) -> int:
         result, stats = done.progressive, done.progressive.stats
         for warning in result.warnings:
             print(f"pointillist render: warning: {warning}", file=sys.stderr)
-        print(f"{info['width']}x{info['height']}, integrator {info['integrator']}, sampler {info['sampler']}: "
+        tiles = (f" as {done.tiles[0]}x{done.tiles[1]} tiles {done.where} ({result.metadata['tile_spp']} spp per "
+                 f"tile; passes are rounds)" if done.tiles else "")
+        print(f"{info['width']}x{info['height']}, integrator {info['integrator']}, sampler {info['sampler']}{tiles}: "
               f"{stats.spp} spp in {stats.passes} passes, {stats.seconds:.2f} s (JIT compile "
               f"{stats.compile_seconds:.2f} s), estimated relMSE {stats.estimated_relmse:.4g} "
               f"({stats.estimate_state}), stopped by {result.stop}"

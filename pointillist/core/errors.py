@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "Terminated", "one_line"]
+__all__ = ["UsageError", "ClusterError", "Terminated", "one_line"]
 
 
 class UsageError(ValueError):
     """Bad input from the user (file, option, scene): exit status 2, one line on stderr."""
+
+
+class ClusterError(RuntimeError):
+    """The Dask cluster went away during the work (its scheduler stopped, or the network to it): exit
+    status 1 and one line on stderr, saying what was kept (a checkpoint) and how to go on."""
 
 
 class Terminated(KeyboardInterrupt):

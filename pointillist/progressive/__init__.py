@@ -42,7 +42,7 @@ from pointillist.progressive.estimate import (FIREFLY_RANGE, FLOORED_SHARE, HALV
                                               RELIABLE_VARIANCE, Accumulator, ErrorEstimate)
 from pointillist.progressive.report import progress_paths, render_warnings, write_progress
 from pointillist.progressive.seeds import pass_seed, tea32
-from pointillist.progressive.stats import HISTORY_COLUMNS, PassStats, history_row
+from pointillist.progressive.stats import HISTORY_COLUMNS, SETTLE_GROWTH, PassStats, history_row, settled
 from pointillist.scene import RenderTiming, scene_info, timed_render
 from pointillist.core.terminal import draws_progress, progress_bar
 
@@ -50,16 +50,17 @@ __all__ = ["MIN_PASSES", "TARGET_PASS_SECONDS", "FIRST_PASS_SAMPLES", "CHECKPOIN
            "RELIABLE_VARIANCE", "FIREFLY_RANGE", "FLOORED_SHARE", "HALVES_AGREEMENT", "STOP_REASONS", "pass_seed",
            "tea32", "PassStats", "ErrorEstimate", "Accumulator", "Budget", "render_passes", "ProgressiveResult",
            "render_progressive", "write_progress", "checkpoint_path", "progress_paths", "scene_fingerprint",
-           "STATUS_SECONDS", "status_line"]
+           "STATUS_SECONDS", "status_line", "SETTLE_GROWTH", "settled"]
 
 
 def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, accumulator: Accumulator,
-            start: PassStats, clock: Callable[[], float],
-            channels: int | None = None) -> Iterator[tuple[Accumulator, PassStats, RenderTiming]]:
+            start: PassStats, clock: Callable[[], float], channels: int | None = None,
+            history: Sequence[tuple[float, ...]] = ()) -> Iterator[tuple[Accumulator, PassStats, RenderTiming]]:
     """The pass loop: render, accumulate, estimate; yields ``(accumulator, stats, timing)``.
 
     ``channels``: the leading channels the estimate takes (the colour; default from the scene's
-    :func:`pointillist.channels.channel_layout`)."""
+    :func:`pointillist.channels.channel_layout`); ``history``: the rows of the passes before
+    ``start`` (a resumed render's), for :func:`~pointillist.progressive.stats.settled`."""
     import drjit as dr
     import mitsuba as mi
 
@@ -68,7 +69,7 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
 
         layout = channel_layout(scene, sensor)
         channels = len(layout.colour) or layout.channels
-    acc, stats = accumulator, start
+    acc, stats, rows = accumulator, start, list(history)
     while True:
         spp = int(plan(stats))
         if spp < 1:
@@ -85,8 +86,10 @@ def _passes(scene, plan: Callable[[PassStats], int], *, seed: int, sensor: int, 
                           compile_seconds=stats.compile_seconds + timing.compile, estimated_relmse=estimate.relmse,
                           width=stats.width, height=stats.height, seed=seed_k, halves_ratio=estimate.halves_ratio,
                           floored=estimate.floored, trusted=estimate.trusted, nonfinite=estimate.nonfinite,
+                          settled=estimate.trusted and settled(rows, acc.weight, estimate.relmse),
                           sizes=stats.sizes if spp in stats.sizes else (*stats.sizes, spp),
                           size_compile_seconds=stats.size_compile_seconds if spp in stats.sizes else timing.compile)
+        rows.append(history_row(stats))
         yield acc, stats, timing
 
 
@@ -156,7 +159,8 @@ class ProgressiveResult:
     summed over the passes (``total`` = the render seconds); ``stop``: one of
     :data:`STOP_REASONS`; ``signum``: the signal that interrupted it (``signal.SIGINT``/``SIGTERM``;
     None otherwise); ``warnings``: one line each (NaN or inf pixels, an estimate the halves do not
-    confirm), for the command line to print.
+    confirm), for the command line to print; ``spp_map``: a tiled render's samples per pixel, float32
+    (H, W) (the EXR layer ``tile_spp``; None in one piece).
     """
 
     image: np.ndarray
@@ -171,6 +175,7 @@ class ProgressiveResult:
     metadata: dict[str, Any] = field(default_factory=dict)
     signum: int | None = None
     warnings: list[str] = field(default_factory=list)
+    spp_map: np.ndarray | None = None
 
 
 def _is_interrupt(error: BaseException | None) -> bool:
@@ -220,6 +225,8 @@ def _postfix(budget: Budget, stats: PassStats) -> str:
                 text += f", target {budget.target_error:g} projected at {needed} spp, {_duration(more)} more"
             else:
                 text += f", target {budget.target_error:g}: no projection until the estimate is trusted"
+        elif budget.target_error is not None and stats.trusted and not stats.settled:
+            text += f", below target {budget.target_error:g}: confirming it over a doubling of the spp"
     return text
 
 
@@ -316,8 +323,8 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     done = {"acc": acc, "stats": stats, "history": list(history), "sums": list(sums), "first_nonfinite": None}
 
     def finish(stop: str, signum: int | None, *, done: dict) -> ProgressiveResult:
-        return _result(done["acc"], done["stats"], done["history"], done["sums"], stop, signum, budget, seed,
-                       resumed_from, checkpoints, channels, done["first_nonfinite"])
+        return _result(*_image(done["acc"], channels), done["stats"], done["history"], done["sums"], stop, signum,
+                       budget, seed, resumed_from, checkpoints, done["first_nonfinite"])
 
     def abandoned() -> None:
         current = dict(done)
@@ -334,7 +341,7 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
     try:
         with signals.deferred() as requested, signals.on_abandon(abandoned):
             for acc, new, timing in _passes(scene, budget, seed=seed, sensor=sensor, accumulator=acc, start=start,
-                                            clock=clock, channels=channels):
+                                            clock=clock, channels=channels, history=history):
                 history.append(history_row(new))
                 if new.nonfinite and first_nonfinite is None:
                     first_nonfinite = new.passes
@@ -371,17 +378,23 @@ def render_progressive(scene, scene_path: str | Path, budget: Budget, *, params:
                         "first_nonfinite": first_nonfinite})
 
 
-def _result(acc: Accumulator, stats: PassStats, history: list, sums: list, stop: str, signum: int | None,
-            budget: Budget, seed: int, resumed_from: int, checkpoints: int, channels: int,
-            first_nonfinite: int | None = None) -> ProgressiveResult:
-    """The :class:`ProgressiveResult` of the passes in ``acc`` (numpy only: also called from the
-    signal watcher's thread while the main thread renders)."""
+def _image(acc: Accumulator, channels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of the passes in ``acc`` (float32 (H, W, C)) and the variance of the mean averaged
+    over the first ``channels`` channels (float32 (H, W)); numpy only: also called from the signal
+    watcher's thread while the main thread renders."""
     image = acc.mean.numpy().astype(np.float32)
     if acc.passes >= 2:
         variance = acc.m2.numpy()[..., :channels] * (1.0 / ((acc.passes - 1) * acc.weight))
     else:
         variance = np.zeros(tuple(acc.mean.shape)[:2] + (channels,))
-    variance = variance.mean(axis=2).astype(np.float32)
+    return image, variance.mean(axis=2).astype(np.float32)
+
+
+def _result(image: np.ndarray, variance: np.ndarray, stats: PassStats, history: list, sums: list, stop: str,
+            signum: int | None, budget: Budget, seed: int, resumed_from: int, checkpoints: int,
+            first_nonfinite: int | None = None) -> ProgressiveResult:
+    """The :class:`ProgressiveResult` of a render's ``image`` and ``variance`` (:func:`_image`) and
+    its ``stats``, ``history``, timing ``sums``, why it stopped, its budget and seed."""
     timing = RenderTiming(trace=sums[0], compile=sums[1], execute=sums[2], total=stats.seconds, kernels=int(sums[3]),
                           cache_hits=int(sums[4]))
     metadata = {"spp": stats.spp, "passes": stats.passes, "estimated_relmse": stats.estimated_relmse,

@@ -46,8 +46,10 @@ class Budget:
         auto passes leave room for ``min_passes`` passes (an estimate) where the time allows. At
         least one pass always runs.
     target_error : float, optional
-        Stop when the estimated relMSE is at most this and trusted (checked from ``min_passes``
-        on; :class:`~pointillist.progressive.estimate.ErrorEstimate`). Auto passes take 1 spp
+        Stop when the estimated relMSE is at most this, trusted (checked from ``min_passes``
+        on; :class:`~pointillist.progressive.estimate.ErrorEstimate`) and settled (the rare-path
+        rule, :func:`~pointillist.progressive.stats.settled`: trusted at half the spp too, the
+        error per spp not grown since; so never before 16 spp). Auto passes take 1 spp
         until the first estimate, then at most a quarter of the spp so far (so that the four
         quarters of the passes stay within 2x of each other: a firefly in a quarter holding more
         than its share is under-counted) and, while the estimate is trusted, no more than the
@@ -129,7 +131,7 @@ class Budget:
         if self.spp is not None and stats.spp >= self.spp:
             return "spp"
         if self.target_error is not None and stats.passes >= self.min_passes and stats.trusted \
-                and stats.estimated_relmse <= self.target_error:
+                and stats.settled and stats.estimated_relmse <= self.target_error:
             return "error"
         if self.seconds is not None and (stats.seconds >= self.seconds or (
                 math.isfinite(self._fitting_spp(stats)) and self._last_fitting_pass(stats) == 0)):
@@ -176,7 +178,7 @@ class Budget:
         if self.target_error is not None and stats.passes >= self.min_passes and math.isfinite(stats.estimated_relmse):
             if self.pass_spp is None:   # a quarter of the spp so far at most: the quarters stay within 2x
                 n = min(n, _pow2_floor(max(stats.spp // 4, 1)))
-            if stats.trusted:           # approach the target from below (the 1/spp law)
+            if stats.trusted and stats.estimated_relmse > self.target_error:  # approach it from below (1/spp)
                 needed = stats.spp * stats.estimated_relmse / self.target_error - stats.spp
                 n = min(n, _pow2_floor(max(int(math.ceil(needed)), 1)))
         n = min(n, checks.UINT32_MAX - stats.spp)

@@ -81,7 +81,7 @@ import numpy as np
 from pointillist.imaging.metrics import RELMSE_EPSILON
 
 __all__ = ["MIN_PASSES", "RELIABLE_VARIANCE", "FIREFLY_RANGE", "FLOORED_SHARE", "HALVES_AGREEMENT", "ErrorEstimate",
-           "Accumulator"]
+           "Accumulator", "estimate_error", "nonfinite_pixels"]
 
 #: Passes before the first error estimate (the spread of fewer passes is too noisy to use: at 4
 #: passes the estimate was off by up to 2x on small path-traced images, at 8 within 1.8x).
@@ -259,74 +259,34 @@ class Accumulator:
             total = total + dr.square(m_q - mean) * dr.opaque(f64, w_q / (3.0 * self.weight))
         return total
 
+    def spread(self):
+        """``(mean, variance, spread_a, spread_b)``: the per-pixel float64 tensors the estimate is made
+        of (all channels): the mean, the quarters' variance of the mean (:meth:`quarters_variance`) and
+        each half's spread ``(m_q1 - m_q2)^2 W_q1 W_q2 / W_h`` (its variance per spp, from its two
+        quarters); None until every quarter has a pass. A tiled render assembles these from its tiles'
+        accumulators (:func:`estimate_error`)."""
+        import drjit as dr
+
+        variance = self.quarters_variance()
+        if variance is None:
+            return None
+        f64 = dr.float64_array_t(dr.array_t(self.mean))
+        halves = []
+        for a, b in ((0, 1), (2, 3)):
+            (m_a, w_a, _), (m_b, w_b, _) = self.quarters[a], self.quarters[b]
+            halves.append(dr.square(m_a - m_b) * dr.opaque(f64, w_a * w_b / (w_a + w_b)))
+        return self.mean, variance, halves[0], halves[1]
+
     def estimate(self, channels: int = 3) -> ErrorEstimate:
         """The relMSE estimated from the spread between the quarters, and whether it is trusted (module
         docstring). Over all pixels and the first ``channels`` channels (the colour; not AOVs).
         """
-        import drjit as dr
-        import mitsuba as mi
-
-        from pointillist.imaging.filters import correlate
-
-        none = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0, math.nan)
         if self.passes == 0:
-            return none
-        height, width, depth = (self.shape + (1,))[:3]
-        c = max(min(int(channels), depth), 1)
-
-        def colour(t):
-            return (t[..., :c] if c < depth else t).array
-
-        m = colour(self.mean)
-        f64 = type(m)
-        finite = dr.isfinite(m)
-        variance = self.quarters_variance()
-        if self.passes < MIN_PASSES or variance is None:
-            return dataclasses.replace(none, nonfinite=self._nonfinite_pixels(finite, height * width, c))
-        v = dr.select(finite, colour(variance), 0.0)
-        m = dr.select(finite, m, 0.0)
-        # the mean of the 8 neighbours (the border pixels repeated outward)
-        around = correlate(mi.TensorXf(dr.float32_array_t(f64)(m), (height, width, c)), _AROUND, border="clamp")
-        n = f64(around.array) * (1.0 / 8.0)
-        square = m * m
-        own = dr.maximum(square - v, 0.0)
-        local = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
-        floor = square * (1.0 / FIREFLY_RANGE ** 2)
-        inverse = dr.select(finite, 1.0 / (dr.maximum(local, floor) + RELMSE_EPSILON), 0.0)
-        terms = [v * inverse, dr.select(floor > local, v * inverse, 0.0), dr.select(finite, 0.0, 1.0)]
-        for a, b in ((0, 1), (2, 3)):   # each half's variance per spp from its two quarters
-            (m_a, w_a, _), (m_b, w_b, _) = self.quarters[a], self.quarters[b]
-            terms.append(dr.select(finite, dr.square(colour(m_a) - colour(m_b)), 0.0) * inverse
-                         * dr.opaque(f64, w_a * w_b / (w_a + w_b)))
-        dr.eval(*terms)       # one kernel; the sums below read its results
-        sums = [dr.sum(t) for t in terms]
-        dr.eval(*sums)
-        total, floored, bad, e_a, e_b = (float(s[0]) for s in sums)
-        nonfinite = self._nonfinite_pixels(finite, height * width, c) if bad else 0
-        values = height * width * c - bad
-        if values == 0:
-            return dataclasses.replace(none, nonfinite=nonfinite)
-        total, floored, e_a, e_b = total / values, floored / values, e_a / values, e_b / values
-        if max(e_a, e_b) == 0:
-            ratio = 1.0
-        else:
-            ratio = max(e_a, e_b) / min(e_a, e_b) if min(e_a, e_b) > 0 else math.inf
-        share = floored / total if total > 0 else 0.0
-        return ErrorEstimate(total, (e_a, e_b), ratio, ratio <= HALVES_AGREEMENT and share <= FLOORED_SHARE,
-                             nonfinite, share)
-
-    @staticmethod
-    def _nonfinite_pixels(finite, pixels: int, channels: int) -> int:
-        """Pixels with a non-finite value in any of their ``channels`` (``finite``: per value)."""
-        import drjit as dr
-        import mitsuba as mi
-
-        bad = dr.select(finite, 0.0, 1.0)
-        first = dr.arange(mi.UInt32, pixels) * channels
-        any_bad = dr.gather(type(bad), bad, first)
-        for k in range(1, channels):
-            any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, first + k))
-        return int(dr.sum(any_bad)[0])
+            return _NONE
+        spread = self.spread() if self.passes >= MIN_PASSES else None
+        if spread is None:
+            return dataclasses.replace(_NONE, nonfinite=nonfinite_pixels(self.mean, channels))
+        return estimate_error(*spread, channels=channels)
 
     def estimated_relmse(self, channels: int = 3) -> float:
         """The estimated relMSE alone (:meth:`estimate`; NaN before :data:`MIN_PASSES` passes)."""
@@ -367,3 +327,82 @@ class Accumulator:
         acc = cls(quarters)
         acc.m2 = t64(np.asarray(data["m2"], np.float64)) if acc.passes else None
         return acc
+
+
+_NONE = ErrorEstimate(math.nan, (math.nan, math.nan), math.nan, False, 0, math.nan)
+
+
+def _colour(t, channels: int):
+    """The first ``channels`` channels of an (H, W, C) tensor, flat (at least 1, at most C)."""
+    depth = (tuple(t.shape) + (1,))[2]
+    c = max(min(int(channels), depth), 1)
+    return (t[..., :c] if c < depth else t).array, c
+
+
+def nonfinite_pixels(mean, channels: int = 3) -> int:
+    """Pixels of the (H, W, C) tensor ``mean`` with a NaN or inf in any of its first ``channels`` channels."""
+    import drjit as dr
+    import mitsuba as mi
+
+    m, c = _colour(mean, channels)
+    pixels = int(mean.shape[0]) * int(mean.shape[1])
+    bad = dr.select(dr.isfinite(m), 0.0, 1.0)
+    first = dr.arange(mi.UInt32, pixels) * c
+    any_bad = dr.gather(type(bad), bad, first)
+    for k in range(1, c):
+        any_bad = dr.maximum(any_bad, dr.gather(type(bad), bad, first + k))
+    return int(dr.sum(any_bad)[0])
+
+
+def estimate_error(mean, variance, spread_a, spread_b, *, channels: int = 3, per_pixel: bool = False):
+    """The error estimate (module docstring) of per-pixel float64 tensors (H, W, C): the ``mean`` of
+    all samples, the ``variance`` of that mean and the two halves' spreads (:meth:`Accumulator.spread`),
+    over the first ``channels`` channels.
+
+    Returns the :class:`ErrorEstimate`; with ``per_pixel``, also each pixel's share of the relMSE
+    (float64 numpy (H, W): its terms ``v / (d + eps)`` summed over the channels, divided by the
+    number of finite values, so that the shares add up to the estimate).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from pointillist.imaging.filters import correlate
+
+    height, width = int(mean.shape[0]), int(mean.shape[1])
+    m, c = _colour(mean, channels)
+    f64 = type(m)
+    finite = dr.isfinite(m)
+    v = dr.select(finite, _colour(variance, channels)[0], 0.0)
+    m = dr.select(finite, m, 0.0)
+    # the mean of the 8 neighbours (the border pixels repeated outward)
+    around = correlate(mi.TensorXf(dr.float32_array_t(f64)(m), (height, width, c)), _AROUND, border="clamp")
+    n = f64(around.array) * (1.0 / 8.0)
+    square = m * m
+    own = dr.maximum(square - v, 0.0)
+    local = dr.select(v <= RELIABLE_VARIANCE * square, own, dr.minimum(own, n * n))
+    floor = square * (1.0 / FIREFLY_RANGE ** 2)
+    inverse = dr.select(finite, 1.0 / (dr.maximum(local, floor) + RELMSE_EPSILON), 0.0)
+    terms = [v * inverse, dr.select(floor > local, v * inverse, 0.0), dr.select(finite, 0.0, 1.0)]
+    for spread in (spread_a, spread_b):   # each half's variance per spp, same denominators
+        terms.append(dr.select(finite, _colour(spread, channels)[0], 0.0) * inverse)
+    dr.eval(*terms)       # one kernel; the sums below read its results
+    sums = [dr.sum(t) for t in terms]
+    dr.eval(*sums)
+    total, floored, bad, e_a, e_b = (float(s[0]) for s in sums)
+    nonfinite = nonfinite_pixels(mean, channels) if bad else 0
+    values = height * width * c - bad
+    if values == 0:
+        none = dataclasses.replace(_NONE, nonfinite=nonfinite)
+        return (none, np.zeros((height, width))) if per_pixel else none
+    total, floored, e_a, e_b = total / values, floored / values, e_a / values, e_b / values
+    if max(e_a, e_b) == 0:
+        ratio = 1.0
+    else:
+        ratio = max(e_a, e_b) / min(e_a, e_b) if min(e_a, e_b) > 0 else math.inf
+    share = floored / total if total > 0 else 0.0
+    estimate = ErrorEstimate(total, (e_a, e_b), ratio, ratio <= HALVES_AGREEMENT and share <= FLOORED_SHARE,
+                             nonfinite, share)
+    if not per_pixel:
+        return estimate
+    shares = terms[0].numpy().reshape(height, width, c).sum(axis=2) / values
+    return estimate, shares
