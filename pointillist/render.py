@@ -152,8 +152,7 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
 
         tiles = tiles or (1, 1)
         with open_client(workers, scheduler, tasks=tiles[0] * tiles[1]) as client:
-            where = ("in process" if client is None else f"on {len(client.scheduler_info(n_workers=-1)['workers'])} "
-                     f"worker(s) at {client.scheduler.address}")
+            where = _where(client)
             result = render_tiled(scene, params, tiles=tiles, spp=spp, seed=seed, client=client, cache=cache,
                                   progress=True, inputs_sha256=inputs_digest(plan.inputs, params))
         signals.check()
@@ -164,6 +163,13 @@ def render_file(scene: str | os.PathLike, output: str | os.PathLike | None = Non
         write_render(out, result.image, loaded, str(scene), meta, timing, png=png, layout=layout, inputs=plan.inputs)
         return RenderSummary(exr=out, png=png_path, info=info, spp=spp, timing=timing, load_seconds=load_s,
                              tiles=tiles, where=where, cached=result.cached, recentring=parsed.recentring)
+
+
+def _where(client) -> str:
+    """Where tiles run, for the summary line: ``in process`` or ``on N worker(s) at ADDRESS``."""
+    if client is None:
+        return "in process"
+    return f"on {len(client.scheduler_info(n_workers=-1)['workers'])} worker(s) at {client.scheduler.address}"
 
 
 def _warn_nonfinite(image, layout) -> None:
@@ -226,8 +232,7 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
         tiles = tiles or DEFAULT_TILES
         cluster = workers is not None or scheduler is not None
         with open_client(workers, scheduler, drjit_threads=1) as client:
-            where = ("in process" if client is None else f"on {len(client.scheduler_info(n_workers=-1)['workers'])} "
-                     f"worker(s) at {client.scheduler.address}")
+            where = _where(client)
             result = render_progressive_tiled(
                 loaded, scene, budget, tiles=tiles, params=params, seed=seed, client=client,
                 checkpoint_seconds=checkpoint,

@@ -176,11 +176,11 @@ class _Engine:
         self.channels, self.clock = channels, clock
         self.pixels = np.array([t.width * t.height for t in tiles], np.float64)
         self.shares: np.ndarray | None = None   # each tile's share of the estimate (after a round)
-        self.rows: list = []                     # the rounds' history rows (the loop keeps them here)
 
     # -- planning
-    def plan(self, frame: _Frame) -> list[tuple[int, int]]:
-        """The round after ``frame``: ``(tile, spp)`` per pass, in (tile, pass) order; empty: done."""
+    def plan(self, frame: _Frame, history: Sequence[tuple[float, ...]]) -> list[tuple[int, int]]:
+        """The round after ``frame`` (``history``: the rows of the rounds done): ``(tile, spp)`` per
+        pass, in (tile, pass) order; empty: done."""
         n = int(self.budget(frame.stats))   # the round's size in frame spp (0: the budget is spent)
         if n < 1:
             return []
@@ -195,7 +195,7 @@ class _Engine:
             # below it but not trusted or not settled: half the error it had when it first came below
             # (a doubling of the samples where the error is, which the rare-path rule asks for); that
             # reached, half the error it has now
-            first = self._first_below(target) / 2
+            first = _first_below(history, target) / 2
             target = max(first if frame.stats.estimated_relmse > first else frame.stats.estimated_relmse / 2, 1e-12)
         wanted = tile_targets(self.shares, weights, self.pixels, target)
         more = np.maximum(wanted - weights, 0.0)
@@ -220,16 +220,6 @@ class _Engine:
                 plan.append((t.index, size))
                 have += size
         return plan
-
-    def _first_below(self, target: float) -> float:
-        """The estimate of the first round of the latest run of rounds whose estimate is at or below
-        ``target`` (from :attr:`rows`, the rounds done)."""
-        first = math.nan
-        for row in reversed(self.rows):
-            if not (math.isfinite(row[3]) and row[3] <= target):
-                break
-            first = row[3]
-        return first if math.isfinite(first) else target
 
     def _cap(self, n: int, have: int) -> int:
         """``n`` spp more for a tile at ``have``, within the spp budget and 2^32 - 1 samples."""
@@ -328,25 +318,33 @@ class _Engine:
         import drjit as dr
         import mitsuba as mi
 
-        first = parts[0].numpy()
-        out = np.zeros((self.height, self.width, first.shape[2]), np.float64)
+        return dr.float64_array_t(mi.TensorXf)(self.place([part.numpy() for part in parts]))
+
+    def place(self, parts: Sequence[np.ndarray]) -> np.ndarray:
+        """One frame array from one numpy array per tile (``(h, w, ...)`` each, the tiles' order)."""
+        out = np.zeros((self.height, self.width) + parts[0].shape[2:], parts[0].dtype)
         for tile, part in zip(self.tiles, parts):
-            out[self._window(tile)] = part.numpy()
-        return dr.float64_array_t(mi.TensorXf)(out)
+            out[self._window(tile)] = part
+        return out
 
     def image(self, accs: Sequence[Accumulator]) -> tuple[np.ndarray, np.ndarray]:
         """The frame's mean (float32 (H, W, C)) and the variance of the mean averaged over the colour
-        channels (float32 (H, W)), assembled from the tiles."""
-        depth = next(acc.shape[2] for acc in accs if acc.shape is not None)
-        image = np.zeros((self.height, self.width, depth), np.float32)
-        variance = np.zeros((self.height, self.width), np.float32)
-        c = max(min(self.channels, depth), 1)
-        for tile, acc in zip(self.tiles, accs):
-            window = self._window(tile)
-            image[window] = acc.mean.numpy()
-            if acc.passes >= 2:
-                variance[window] = (acc.m2.numpy()[..., :c] / ((acc.passes - 1) * acc.weight)).mean(axis=2)
-        return image, variance
+        channels (float32 (H, W)), assembled from the tiles (each as one machine's render makes them)."""
+        from pointillist.progressive import _image
+
+        images, variances = zip(*(_image(acc, self.channels) for acc in accs))
+        return self.place(images), self.place(variances)
+
+
+def _first_below(history: Sequence[tuple[float, ...]], target: float) -> float:
+    """The estimate of the first round of the latest run of rounds (``history`` rows) whose estimate is
+    at or below ``target`` (``target`` when there is none)."""
+    first = math.nan
+    for row in reversed(history):
+        if not (math.isfinite(row[3]) and row[3] <= target):
+            break
+        first = row[3]
+    return first if math.isfinite(first) else target
 
 
 def _tensor(image: np.ndarray):
@@ -472,8 +470,7 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
     try:
         with signals.deferred() as requested:
             while True:
-                engine.rows = history
-                plan = engine.plan(frame)
+                plan = engine.plan(frame, history)
                 if not plan:
                     break
                 try:
@@ -524,9 +521,7 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
                      (signum or signals.received()) if stop == "interrupted" else None, budget, seed, resumed_from,
                      checkpoints, first_nonfinite)
     spp = [acc.weight for acc in frame.accs]
-    result.spp_map = np.zeros(image.shape[:2], np.float32)
-    for tile, count in zip(grid, spp):
-        result.spp_map[engine._window(tile)] = count
+    result.spp_map = engine.place([np.full((t.height, t.width), count, np.float32) for t, count in zip(grid, spp)])
     result.metadata.update(tile_grid=f"{rows}x{cols}", tile_spp=f"{min(spp)}..{max(spp)}", rounds=frame.stats.passes,
                            pass_seeds="(TEA(seed, tile) + pass) mod 2^32, each pass on one thread")
     result.metadata.pop("passes", None)
