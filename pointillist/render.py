@@ -237,7 +237,8 @@ def _render_progressive(loaded, scene, out: Path, png_path: Path | None, info: d
                 loaded, scene, budget, tiles=tiles, params=params, seed=seed, client=client,
                 checkpoint_seconds=checkpoint,
                 checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume or cluster else None,
-                resume=resume, progress=True, inputs=plan.inputs, layout=layout)
+                resume=resume, progress=True, inputs=plan.inputs, layout=layout,
+                abandon=lambda partial: write(partial, png=False))
     else:
         result = render_progressive(loaded, scene, budget, params=params, seed=seed, checkpoint_seconds=checkpoint,
                                     checkpoint_file=checkpoint_path(out) if checkpoint is not None or resume else None,

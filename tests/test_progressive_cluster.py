@@ -338,3 +338,28 @@ def test_a_rounds_passes_go_out_in_bundles_of_about_equal_samples(passes, count)
     loads = [sum(tasks[i].spp * tasks[i].crop[2] * tasks[i].crop[3] for i in b) for b in bundles]
     largest = max(t.spp * t.crop[2] * t.crop[3] for t in tasks)
     assert max(loads) - min(loads) <= largest
+
+
+def test_a_second_signal_keeps_the_rounds_done(tmp_path):
+    """Two SIGINTs during a tiled render: the process ends at once, the EXR and the checkpoint of the
+    rounds done are written (interrupted = 1), nothing the render had is lost."""
+    out = tmp_path / "cut.exr"
+    proc = subprocess.Popen([sys.executable, "-m", "pointillist", "render", str(EDGES), "-D", "res=64", "--tiles", "2x2",
+                             "--time", "120", "--checkpoint", "0.2", "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    checkpoint = out.with_suffix(".checkpoint.npz")
+    deadline = time.monotonic() + 120
+    while not checkpoint.is_file() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    assert checkpoint.is_file(), proc.communicate()[1]
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    meta = read_exr(out).metadata
+    assert meta["interrupted"] == 1 and meta["stopped_by"] == "interrupted" and meta["rounds"] >= 1
+    import json
+
+    with np.load(checkpoint) as data:
+        assert json.loads(str(data["stats"]))["passes"] == meta["rounds"]

@@ -391,7 +391,8 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
                              checkpoint_seconds: float | None = None, checkpoint_file: str | Path | None = None,
                              resume: bool = False, progress: bool = True,
                              clock: Callable[[], float] = time.perf_counter,
-                             inputs: Sequence[str | Path] | None = None, layout=None, adaptive: bool = True):
+                             inputs: Sequence[str | Path] | None = None, layout=None, adaptive: bool = True,
+                             abandon: Callable | None = None):
     """Render ``scene`` progressively in ``tiles`` (rows, cols) until ``budget`` is spent: in this
     process (``client`` None: one pass at a time, each on one thread) or on a Dask ``client``.
 
@@ -401,7 +402,8 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
     scene by its absolute path. With a target error the passes go to the tiles whose error is largest
     (module docstring; ``adaptive=False``: every tile the same passes, as one machine's render). A
     checkpoint holds every tile's accumulator; it resumes in this process or on any cluster, with the
-    same tiles.
+    same tiles. A second signal (or a round still running a second after the first) ends the process
+    at once: the rounds done go to the checkpoint file (where there is one) and to ``abandon(result)``.
 
     Raises
     ------
@@ -464,11 +466,37 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
         save_checkpoint(checkpoint_file, list(current.accs), current.stats, rows_done, identity,
                         settle=settle_rows[:len(rows_done)])
 
+    def finish(stop: str, signum: int | None, done: dict):
+        current = done["frame"]
+        image, variance = engine.image(current.accs)
+        result = _result(image, variance, current.stats, done["history"], done["sums"], stop, signum, budget, seed,
+                         resumed_from, checkpoints, done["first_nonfinite"])
+        spp = [acc.weight for acc in current.accs]
+        result.spp_map = engine.place([np.full((t.height, t.width), n, np.float32) for t, n in zip(grid, spp)])
+        result.metadata.update(tile_grid=f"{rows}x{cols}", tile_spp=f"{min(spp)}..{max(spp)}",
+                               rounds=current.stats.passes,
+                               pass_seeds="(TEA(seed, tile) + pass) mod 2^32, each pass on one thread")
+        result.metadata.pop("passes", None)
+        return result
+
+    # what a second signal writes (read by the signal watcher's thread: replaced, never changed)
+    done = dict(frame=frame, history=list(history), settle=list(settle_rows), sums=list(sums), first_nonfinite=None)
+
+    def abandoned() -> None:
+        current = dict(done)
+        if current["frame"].stats.passes == resumed_from:
+            return
+        if checkpoint_file is not None:
+            save_checkpoint(checkpoint_file, list(current["frame"].accs), current["frame"].stats,
+                            current["history"], identity, settle=current["settle"])
+        if abandon is not None:
+            abandon(finish("interrupted", signals.received(), current))
+
     last_write = last_status = clock()
     bar = _bar(budget, frame.stats, progress)
     status = progress and not draws_progress(progress)
     try:
-        with signals.deferred() as requested:
+        with signals.deferred() as requested, signals.on_abandon(abandoned):
             while True:
                 plan = engine.plan(frame, history)
                 if not plan:
@@ -494,6 +522,8 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
                         sums[3] + timing["kernels"], sums[4] + timing["cache_hits"]]
                 bar.update(_bar_position(budget, new.stats) - _bar_position(budget, frame.stats))
                 frame = new
+                done = dict(frame=frame, history=list(history), settle=list(settle_rows), sums=list(sums),
+                            first_nonfinite=first_nonfinite)
                 bar.set_postfix_str(_postfix(budget, frame.stats), refresh=False)
                 if status and clock() - last_status >= STATUS_SECONDS:
                     print(status_line(budget, frame.stats), file=sys.stderr, flush=True)
@@ -516,14 +546,6 @@ def render_progressive_tiled(scene, scene_path: str | Path, budget: Budget, *, t
     if checkpoint_seconds is not None and frame.stats.passes > resumed_from:
         save(frame, history)
         checkpoints += 1
-    image, variance = engine.image(frame.accs)
-    result = _result(image, variance, frame.stats, history, sums, stop,
-                     (signum or signals.received()) if stop == "interrupted" else None, budget, seed, resumed_from,
-                     checkpoints, first_nonfinite)
-    spp = [acc.weight for acc in frame.accs]
-    result.spp_map = engine.place([np.full((t.height, t.width), count, np.float32) for t, count in zip(grid, spp)])
-    result.metadata.update(tile_grid=f"{rows}x{cols}", tile_spp=f"{min(spp)}..{max(spp)}", rounds=frame.stats.passes,
-                           pass_seeds="(TEA(seed, tile) + pass) mod 2^32, each pass on one thread")
-    result.metadata.pop("passes", None)
-    return result
+    return finish(stop, (signum or signals.received()) if stop == "interrupted" else None,
+                  dict(frame=frame, history=history, sums=sums, first_nonfinite=first_nonfinite))
 
