@@ -344,8 +344,8 @@ def test_a_second_signal_keeps_the_rounds_done(tmp_path):
     """Two SIGINTs during a tiled render: the process ends at once, the EXR and the checkpoint of the
     rounds done are written (interrupted = 1), nothing the render had is lost."""
     out = tmp_path / "cut.exr"
-    proc = subprocess.Popen([sys.executable, "-m", "pointillist", "render", str(EDGES), "-D", "res=64", "--tiles", "2x2",
-                             "--time", "120", "--checkpoint", "0.2", "-o", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "pointillist", "render", str(EDGES), "-D", "res=64",
+                             "--tiles", "2x2", "--time", "120", "--checkpoint", "0.2", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     checkpoint = out.with_suffix(".checkpoint.npz")
     deadline = time.monotonic() + 120
